@@ -1,0 +1,180 @@
+//! Primitive shapes as triangle meshes, centred on the origin, with every edge no longer than a
+//! given length so that sampling and normals stay accurate on curved parts.
+
+use std::f64::consts::PI;
+
+use super::TriMesh;
+
+fn divisions(length_m: f64, max_edge_m: f64) -> usize {
+    ((length_m / max_edge_m).ceil() as usize).max(1)
+}
+
+/// Adds a grid of `nu`×`nv` quads spanning `origin + u·[0,1] + v·[0,1]` (normal along u×v).
+fn add_grid(mesh: &mut TriMesh, origin: [f64; 3], u: [f64; 3], v: [f64; 3], nu: usize, nv: usize) {
+    let base = mesh.vertices_m.len() as u32;
+    for j in 0..=nv {
+        for i in 0..=nu {
+            let (a, b) = (i as f64 / nu as f64, j as f64 / nv as f64);
+            mesh.vertices_m
+                .push([0, 1, 2].map(|k| origin[k] + a * u[k] + b * v[k]));
+        }
+    }
+    let idx = |i: usize, j: usize| base + (j * (nu + 1) + i) as u32;
+    for j in 0..nv {
+        for i in 0..nu {
+            mesh.triangles
+                .push([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)]);
+            mesh.triangles
+                .push([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)]);
+        }
+    }
+}
+
+/// A one-sided rectangle in the xy-plane facing +z, `size_m = [x, y]`. Its rim is a free edge.
+pub fn plate_mesh(size_m: [f64; 2], max_edge_m: f64) -> TriMesh {
+    let mut m = TriMesh::default();
+    let (nx, ny) = (
+        divisions(size_m[0], max_edge_m),
+        divisions(size_m[1], max_edge_m),
+    );
+    add_grid(
+        &mut m,
+        [-size_m[0] / 2.0, -size_m[1] / 2.0, 0.0],
+        [size_m[0], 0.0, 0.0],
+        [0.0, size_m[1], 0.0],
+        nx,
+        ny,
+    );
+    m.welded(1e-12)
+}
+
+/// A closed box with `size_m = [x, y, z]`.
+pub fn box_mesh(size_m: [f64; 3], max_edge_m: f64) -> TriMesh {
+    let [sx, sy, sz] = size_m;
+    let (hx, hy, hz) = (sx / 2.0, sy / 2.0, sz / 2.0);
+    let (nx, ny, nz) = (
+        divisions(sx, max_edge_m),
+        divisions(sy, max_edge_m),
+        divisions(sz, max_edge_m),
+    );
+    let mut m = TriMesh::default();
+    // Each face: origin, u, v with u×v pointing outward.
+    add_grid(&mut m, [-hx, -hy, hz], [sx, 0.0, 0.0], [0.0, sy, 0.0], nx, ny);
+    add_grid(&mut m, [-hx, hy, -hz], [sx, 0.0, 0.0], [0.0, -sy, 0.0], nx, ny);
+    add_grid(&mut m, [hx, -hy, -hz], [0.0, sy, 0.0], [0.0, 0.0, sz], ny, nz);
+    add_grid(&mut m, [-hx, hy, -hz], [0.0, -sy, 0.0], [0.0, 0.0, sz], ny, nz);
+    add_grid(&mut m, [hx, hy, -hz], [-sx, 0.0, 0.0], [0.0, 0.0, sz], nx, nz);
+    add_grid(&mut m, [-hx, -hy, -hz], [sx, 0.0, 0.0], [0.0, 0.0, sz], nx, nz);
+    m.welded(1e-12)
+}
+
+/// A UV sphere of `radius_m`.
+pub fn sphere_mesh(radius_m: f64, max_edge_m: f64) -> TriMesh {
+    let rings = divisions(PI * radius_m, max_edge_m).max(4);
+    let segments = divisions(2.0 * PI * radius_m, max_edge_m).max(8);
+    let mut m = TriMesh::default();
+    m.vertices_m.push([0.0, 0.0, radius_m]);
+    for r in 1..rings {
+        let theta = PI * r as f64 / rings as f64;
+        for s in 0..segments {
+            let phi = 2.0 * PI * s as f64 / segments as f64;
+            m.vertices_m.push([
+                radius_m * theta.sin() * phi.cos(),
+                radius_m * theta.sin() * phi.sin(),
+                radius_m * theta.cos(),
+            ]);
+        }
+    }
+    m.vertices_m.push([0.0, 0.0, -radius_m]);
+    let south = (m.vertices_m.len() - 1) as u32;
+    let ring = |r: usize, s: usize| (1 + (r - 1) * segments + s % segments) as u32;
+    for s in 0..segments {
+        m.triangles.push([0, ring(1, s), ring(1, s + 1)]);
+        m.triangles
+            .push([south, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+    }
+    for r in 1..rings - 1 {
+        for s in 0..segments {
+            m.triangles
+                .push([ring(r, s), ring(r + 1, s), ring(r + 1, s + 1)]);
+            m.triangles
+                .push([ring(r, s), ring(r + 1, s + 1), ring(r, s + 1)]);
+        }
+    }
+    m
+}
+
+/// A closed cylinder of `radius_m` and `length_m` along z.
+pub fn cylinder_mesh(radius_m: f64, length_m: f64, max_edge_m: f64) -> TriMesh {
+    let segments = divisions(2.0 * PI * radius_m, max_edge_m).max(8);
+    let stacks = divisions(length_m, max_edge_m);
+    let rings = divisions(radius_m, max_edge_m);
+    let h = length_m / 2.0;
+    let mut m = TriMesh::default();
+    let at = |s: usize, r: f64, z: f64| {
+        let phi = 2.0 * PI * (s % segments) as f64 / segments as f64;
+        [r * phi.cos(), r * phi.sin(), z]
+    };
+    // Side.
+    for k in 0..=stacks {
+        let z = -h + length_m * k as f64 / stacks as f64;
+        for s in 0..segments {
+            m.vertices_m.push(at(s, radius_m, z));
+        }
+    }
+    let side = |k: usize, s: usize| (k * segments + s % segments) as u32;
+    for k in 0..stacks {
+        for s in 0..segments {
+            m.triangles
+                .push([side(k, s), side(k, s + 1), side(k + 1, s + 1)]);
+            m.triangles
+                .push([side(k, s), side(k + 1, s + 1), side(k + 1, s)]);
+        }
+    }
+    // Caps: concentric rings down to a centre vertex.
+    for (z, up) in [(h, true), (-h, false)] {
+        let centre = m.vertices_m.len() as u32;
+        m.vertices_m.push([0.0, 0.0, z]);
+        let first = m.vertices_m.len() as u32;
+        for q in 1..=rings {
+            let r = radius_m * q as f64 / rings as f64;
+            for s in 0..segments {
+                m.vertices_m.push(at(s, r, z));
+            }
+        }
+        let v = |q: usize, s: usize| first + ((q - 1) * segments + s % segments) as u32;
+        let mut push = |a: u32, b: u32, c: u32| {
+            m.triangles.push(if up { [a, b, c] } else { [a, c, b] });
+        };
+        for s in 0..segments {
+            push(centre, v(1, s), v(1, s + 1));
+        }
+        for q in 1..rings {
+            for s in 0..segments {
+                push(v(q, s), v(q + 1, s), v(q + 1, s + 1));
+                push(v(q, s), v(q + 1, s + 1), v(q, s + 1));
+            }
+        }
+    }
+    m.welded(1e-12)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn closed_volume_close(m: &TriMesh, expected: f64, tol: f64) {
+        let v = m.signed_volume_m3();
+        assert!((v - expected).abs() / expected < tol, "{v} vs {expected}");
+    }
+
+    #[test]
+    fn primitives_are_closed_and_outward() {
+        closed_volume_close(&box_mesh([0.1, 0.2, 0.05], 0.01), 0.001, 1e-9);
+        closed_volume_close(&sphere_mesh(0.05, 0.002), 4.0 / 3.0 * PI * 0.05f64.powi(3), 2e-3);
+        closed_volume_close(&cylinder_mesh(0.03, 0.1, 0.002), PI * 0.0009 * 0.1, 2e-3);
+        let plate = plate_mesh([0.1, 0.05], 0.01);
+        assert!((plate.area_m2() - 0.005).abs() < 1e-12);
+        assert!(plate.signed_volume_m3().abs() < 1e-15);
+    }
+}

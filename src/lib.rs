@@ -1,0 +1,32 @@
+//! # mmnormd
+//!
+//! mmWave non-line-of-sight 3-D reconstruction (mmNorm) and the lab system around it.
+//!
+//! Data flows one way: a radar profile and a scene (or, later, the real devices) produce a
+//! [`capture::Capture`]; the capture goes to the reconstruction; the reconstruction writes a point
+//! cloud; the evaluation scores it. Each stage reads the previous stage's plain data types and never
+//! reaches back into an earlier one.
+//!
+//! Layout:
+//! - [`radar`]: the IWR1443 chirp profile, parsed from a mmWave CLI `.cfg` script.
+//! - [`capture`]: the in-memory capture and the on-disk *capture directory v1* (`.npy` + JSON).
+//! - [`geometry`]: triangle meshes, their file formats (STL, OBJ, PLY), primitives and a BVH.
+//! - [`signal`]: the FMCW tone synthesis and the seeded noise generator shared by every model.
+//! - [`sim`]: scenes and the physical-optics forward simulator that turns a scene into a capture.
+//! - [`preview`]: PNG pictures for people.
+//! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.
+//!
+//! The command-line front end lives in the binary (`src/main.rs` and `src/cli/`); it is the only
+//! place that uses `anyhow`. Library modules return their own `thiserror` enums.
+
+pub mod capture;
+pub mod geometry;
+pub mod preview;
+pub mod progress;
+pub mod radar;
+pub mod signal;
+pub mod sim;
+
+/// Speed of light in vacuum, m/s (exact, SI). The authors' code mixes this with 3e8 in places;
+/// mmnormd uses this constant everywhere.
+pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;

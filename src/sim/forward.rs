@@ -1,0 +1,489 @@
+//! The forward model: a scene in, a capture out.
+//!
+//! Every reflection is single-bounce, with free-space spreading 1/(d_tx·d_rx) and visibility
+//! checked by BVH shadow rays on both the TX and the RX leg. Amplitudes are in *image units*: a
+//! scatterer of bistatic RCS σ returns `√(σ/4π)/(d_tx·d_rx)`, so an infinite mirror at distance R
+//! returns 1/(2R). Three surface terms, one per physical mechanism:
+//!
+//! 1. **Specular (physical optics).** Each λ/4 sample of area A contributes
+//!    `−j·ρ·A/λ_t · ½(cos θ_tx + cos θ_rx) · W(θ_b) / (d_tx·d_rx)` along its path, the scalar PO
+//!    integrand. Specularity is not imposed: it emerges from the coherent sum, whose stationary
+//!    point is the mirror point. W is a smooth window on θ_b, the angle between the sample
+//!    normal and the bistatic bisector (1 up to `specular_full_deg`, raised-cosine to 0 at
+//!    `specular_cutoff_deg`). It keeps the stationary-phase region (the first Fresnel zone spans
+//!    about 4° at 40 cm) and drops the far-off-specular part of the integral, which cancels
+//!    anyway except at discontinuities. Those discontinuities are handled by term 3. The −j and
+//!    the 1/λ_t make the stationary-phase sum equal image theory; the test
+//!    `plate_return_matches_image_theory` checks it, and `sphere_return_matches_geometric_optics`
+//!    checks a sphere against a/(2R(R+a)).
+//! 2. **Diffuse (directive model).** Samples at a coarser spacing, each with a fixed random
+//!    phase (frozen roughness), scatter with the Degli-Esposti directive lobe: bistatic RCS
+//!    `σ = 4π·S²·A·cos θ_i·((1 + cos ψ)/2)^α · (α + 1)/(4π)`, where ψ is the angle between the
+//!    scattered direction and the specular direction. The (α + 1)/4π normalises the lobe over
+//!    the sphere.
+//! 3. **Edge diffraction.** Pieces of sharp edges of length dl contribute
+//!    `κ·dl/(2π)/(d_tx·d_rx)`, visible only from the wedge's exterior. Summed coherently along a
+//!    straight edge this gives the half-plane's broadside RCS L²/π, and Keller's cone emerges
+//!    from the stationary phase along the edge.
+//!
+//! Point targets (calibration objects) return `√(σ/4π)/(d_tx·d_rx)` with no phase shift. The
+//! reconstruction's own forward model is not used here.
+
+use std::f32::consts::PI;
+
+use num_complex::Complex32;
+use rayon::prelude::*;
+
+use super::aperture::{Antennas, Pattern, raster_antennas};
+use super::scene::{ObjectGeometry, Occluder, Scene};
+use super::surface::{self, Cluster, EdgeSample, Samples};
+use crate::SPEED_OF_LIGHT_M_PER_S;
+use crate::capture::{Capture, FrequencyPlan};
+use crate::geometry::{Bvh, TriMesh};
+use crate::progress::Progress;
+use crate::signal::{Rng, ToneAccumulator};
+
+/// Shadow-ray origins are moved this far off the surface.
+const RAY_OFFSET_M: f32 = 1e-4;
+/// Stream keys of the seeded generator.
+const ROUGHNESS_STREAM: u64 = 1;
+const NOISE_STREAM: u64 = 2;
+
+/// Counts and timings of one simulation.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct SimStats {
+    pub antennas: usize,
+    pub triangles: usize,
+    pub specular_samples: usize,
+    pub diffuse_samples: usize,
+    pub edge_samples: usize,
+    pub point_targets: usize,
+    /// Visible scatterer–antenna pairs that were summed.
+    pub contributions: u64,
+    pub noise_sigma: f64,
+    pub seconds: f64,
+}
+
+/// What a simulation produces.
+#[derive(Debug, Clone)]
+pub struct SimOutput {
+    pub capture: Capture,
+    pub antennas: Antennas,
+    /// All surface objects as one mesh (the occluder is not part of the truth).
+    pub truth_mesh: TriMesh,
+    pub stats: SimStats,
+}
+
+/// Scatterers in the form the per-antenna loop wants.
+struct Scatterers {
+    spec: Samples,
+    /// ρ·A per specular sample.
+    spec_weight: Vec<f32>,
+    clusters: Vec<Cluster>,
+    /// Cosine and sine of (cutoff + cone half-angle) per cluster, for culling.
+    cluster_limit: Vec<(f32, f32)>,
+    diff: Samples,
+    /// S·√(A·(α+1)/4π) per diffuse sample, α/2, and the roughness phasor.
+    diff_weight: Vec<f32>,
+    diff_half_alpha: Vec<f32>,
+    diff_phasor: Vec<Complex32>,
+    edges: Vec<EdgeSample>,
+    edge_weight: Vec<f32>,
+    points: Vec<([f32; 3], f32)>,
+}
+
+struct Ctx<'a> {
+    s: &'a Scatterers,
+    bvh: &'a Bvh,
+    pattern: Pattern,
+    occluder: Option<&'a Occluder>,
+    cos_full: f32,
+    cos_cutoff: f32,
+    full_rad: f32,
+    cutoff_rad: f32,
+}
+
+#[inline]
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+#[inline]
+fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// Direction and distance from `p` to `a`.
+#[inline]
+fn towards(p: [f32; 3], a: [f32; 3]) -> ([f32; 3], f32) {
+    let v = sub(a, p);
+    let d = dot(v, v).sqrt();
+    (scale(v, 1.0 / d), d)
+}
+
+fn f32v(p: [f64; 3]) -> [f32; 3] {
+    p.map(|c| c as f32)
+}
+
+/// Runs the forward model over every antenna of the scene's aperture.
+pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
+    let started = std::time::Instant::now();
+    let plan = scene.plan;
+    let lambda0_m = plan.first_wavelength_m();
+    let rx_channels: Vec<u8> = scene
+        .profile
+        .as_ref()
+        .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone());
+    let antennas = raster_antennas(&scene.aperture, &rx_channels, lambda0_m);
+    let (scatterers, truth_mesh) = prepare(scene);
+    let bvh = Bvh::build(&truth_mesh);
+    let set = &scene.settings;
+    let ctx = Ctx {
+        s: &scatterers,
+        bvh: &bvh,
+        pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
+        occluder: scene.occluder.as_ref(),
+        cos_full: (set.specular_full_deg.to_radians() as f32).cos(),
+        cos_cutoff: (set.specular_cutoff_deg.to_radians() as f32).cos(),
+        full_rad: set.specular_full_deg.to_radians() as f32,
+        cutoff_rad: set.specular_cutoff_deg.to_radians() as f32,
+    };
+    let t = plan.samples_per_chirp;
+    let n = antennas.tx_m.len();
+    let inv_wavelength: Vec<f32> = (0..t)
+        .map(|k| (plan.frequency_hz(k) / SPEED_OF_LIGHT_M_PER_S) as f32)
+        .collect();
+    let mut samples = vec![Complex32::new(0.0, 0.0); n * t];
+    let progress = Progress::new("simulate", n as u64, quiet);
+    let contributions: u64 = samples
+        .par_chunks_mut(t)
+        .enumerate()
+        .map_init(
+            || {
+                (
+                    ToneAccumulator::new(&plan, scene.range_offset_m),
+                    ToneAccumulator::new(&plan, scene.range_offset_m),
+                )
+            },
+            |(spec_acc, other_acc), (i, out)| {
+                spec_acc.clear();
+                other_acc.clear();
+                let tx = antennas.tx_m[i];
+                let rx = antennas.rx_m[i];
+                let count = ctx.antenna(f32v(tx), f32v(rx), spec_acc, other_acc);
+                spec_acc.scale_by(&inv_wavelength);
+                spec_acc.add_into(out);
+                other_acc.add_into(out);
+                if let Some(occ) = ctx.occluder
+                    && let Some((factors, path_m)) = occ.reflection(&plan, tx, rx)
+                {
+                    add_sheet_reflection(&plan, scene.range_offset_m, &factors, path_m, out);
+                }
+                progress.inc(1);
+                count
+            },
+        )
+        .sum();
+    progress.finish();
+
+    let noise_sigma = match scene.noise {
+        Some((snr_db, seed)) => add_noise(&mut samples, t, snr_db, seed),
+        None => 0.0,
+    };
+    let stats = SimStats {
+        antennas: n,
+        triangles: truth_mesh.triangles.len(),
+        specular_samples: scatterers.spec.len(),
+        diffuse_samples: scatterers.diff.len(),
+        edge_samples: scatterers.edges.len(),
+        point_targets: scatterers.points.len(),
+        contributions,
+        noise_sigma,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    let capture = Capture {
+        plan,
+        range_offset_m: scene.range_offset_m,
+        tx_m: antennas.tx_m.clone(),
+        rx_m: antennas.rx_m.clone(),
+        samples,
+        description: scene.description.clone(),
+        extra: serde_json::Map::new(),
+    };
+    SimOutput {
+        capture,
+        antennas,
+        truth_mesh,
+        stats,
+    }
+}
+
+fn add_sheet_reflection(
+    plan: &FrequencyPlan,
+    range_offset_m: f64,
+    factors: &[Complex32],
+    path_m: f64,
+    out: &mut [Complex32],
+) {
+    for (k, (o, g)) in out.iter_mut().zip(factors).enumerate() {
+        let phase = std::f64::consts::TAU
+            * (plan.frequency_hz(k) * (path_m + range_offset_m) / SPEED_OF_LIGHT_M_PER_S).fract();
+        let (s, c) = phase.sin_cos();
+        *o += g * Complex32::new(c as f32, s as f32) / path_m as f32;
+    }
+}
+
+/// Adds complex Gaussian noise at `snr_db` below the mean sample power; returns σ per sample.
+fn add_noise(samples: &mut [Complex32], t: usize, snr_db: f64, seed: u64) -> f64 {
+    let power: f64 = samples
+        .par_iter()
+        .map(|s| f64::from(s.norm_sqr()))
+        .sum::<f64>()
+        / samples.len().max(1) as f64;
+    let sigma = (power / 10f64.powf(snr_db / 10.0)).sqrt();
+    let per_component = sigma / std::f64::consts::SQRT_2;
+    samples
+        .par_chunks_mut(t)
+        .enumerate()
+        .for_each(|(i, chirp)| {
+            let mut rng = Rng::for_stream(seed, NOISE_STREAM, i as u64);
+            for s in chirp {
+                let (a, b) = rng.normal_pair();
+                s.re += (a * per_component) as f32;
+                s.im += (b * per_component) as f32;
+            }
+        });
+    sigma
+}
+
+/// Samples every object and merges the surfaces into the truth mesh.
+fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
+    let set = &scene.settings;
+    let mut truth = TriMesh::default();
+    let mut s = Scatterers {
+        spec: Samples::default(),
+        spec_weight: Vec::new(),
+        clusters: Vec::new(),
+        cluster_limit: Vec::new(),
+        diff: Samples::default(),
+        diff_weight: Vec::new(),
+        diff_half_alpha: Vec::new(),
+        diff_phasor: Vec::new(),
+        edges: Vec::new(),
+        edge_weight: Vec::new(),
+        points: Vec::new(),
+    };
+    let cutoff = set.specular_cutoff_deg.to_radians();
+    let mut rough = Rng::for_stream(scene.seed, ROUGHNESS_STREAM, 0);
+    for object in &scene.objects {
+        let m = object.material;
+        match &object.geometry {
+            ObjectGeometry::Point {
+                position_m,
+                rcs_m2,
+            } => {
+                let amp = (rcs_m2 / (4.0 * std::f64::consts::PI)).sqrt() as f32;
+                s.points.push((f32v(*position_m), amp));
+            }
+            ObjectGeometry::Surface(mesh) => {
+                let normals = surface::corner_normals(mesh, set.crease_angle_deg);
+                let base = s.spec.len() as u32;
+                let (spec, clusters) =
+                    surface::sample_surface(mesh, &normals, set.sample_spacing_m);
+                s.spec_weight
+                    .extend(spec.area_m2.iter().map(|a| a * m.reflectivity as f32));
+                for mut c in clusters {
+                    c.first += base;
+                    let limit = (cutoff + f64::from(c.cos_half_angle).acos()).min(std::f64::consts::PI);
+                    s.cluster_limit
+                        .push((limit.cos() as f32, limit.sin() as f32));
+                    s.clusters.push(c);
+                }
+                append(&mut s.spec, spec);
+                if m.diffuse > 0.0 {
+                    let (diff, _) = surface::sample_surface(mesh, &normals, set.diffuse_spacing_m);
+                    let norm = (m.diffuse_exponent + 1.0) / (4.0 * std::f64::consts::PI);
+                    for &a in &diff.area_m2 {
+                        s.diff_weight
+                            .push((m.diffuse * (f64::from(a) * norm).sqrt()) as f32);
+                        s.diff_half_alpha.push((m.diffuse_exponent / 2.0) as f32);
+                        let (sn, cs) = (std::f64::consts::TAU * rough.uniform()).sin_cos();
+                        s.diff_phasor.push(Complex32::new(cs as f32, sn as f32));
+                    }
+                    append(&mut s.diff, diff);
+                }
+                if m.edge > 0.0 {
+                    let edges =
+                        surface::sample_edges(mesh, set.crease_angle_deg, set.sample_spacing_m);
+                    s.edge_weight.extend(
+                        edges
+                            .iter()
+                            .map(|e| (m.edge as f32) * e.length_m / (2.0 * PI)),
+                    );
+                    s.edges.extend(edges);
+                }
+                truth.append(mesh);
+            }
+        }
+    }
+    (s, truth)
+}
+
+fn append(into: &mut Samples, from: Samples) {
+    into.position.extend(from.position);
+    into.normal.extend(from.normal);
+    into.area_m2.extend(from.area_m2);
+}
+
+impl Ctx<'_> {
+    /// Whether the straight leg from `origin` to `a` (distance `d`, direction `u`) is free.
+    #[inline]
+    fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32) -> bool {
+        !self.bvh.occluded(origin, u, d)
+    }
+
+    /// Pattern and sheet factors and the sheet's extra path for both legs.
+    #[inline]
+    fn path_factors(&self, p: [f32; 3], tx: [f32; 3], rx: [f32; 3], ut: [f32; 3], ur: [f32; 3]) -> (f32, f32) {
+        let mut amp = 1.0;
+        if !self.pattern.is_isotropic() {
+            amp *= self.pattern.gain(scale(ut, -1.0)) * self.pattern.gain(scale(ur, -1.0));
+        }
+        let mut extra = 0.0;
+        if let Some(o) = self.occluder {
+            let (a1, e1) = o.leg(p, tx);
+            let (a2, e2) = o.leg(p, rx);
+            amp *= a1 * a2;
+            extra = e1 + e2;
+        }
+        (amp, extra)
+    }
+
+    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`.
+    #[inline]
+    fn visible(&self, p: [f32; 3], offset_dir: [f32; 3], ut: [f32; 3], dt: f32, ur: [f32; 3], dr: f32, same: bool) -> bool {
+        let o = add(p, scale(offset_dir, RAY_OFFSET_M));
+        self.clear(o, ut, dt) && (same || self.clear(o, ur, dr))
+    }
+
+    /// Sums every scatterer's return for one virtual antenna. Specular terms go to `spec`
+    /// (scaled by 1/λ_t afterwards), the others to `other`. Returns the number of contributions.
+    fn antenna(
+        &self,
+        tx: [f32; 3],
+        rx: [f32; 3],
+        spec: &mut ToneAccumulator,
+        other: &mut ToneAccumulator,
+    ) -> u64 {
+        let same = tx == rx;
+        let mid = scale(add(tx, rx), 0.5);
+        let half_sep = dot(sub(tx, rx), sub(tx, rx)).sqrt() / 2.0;
+        let s = self.s;
+        let mut count = 0u64;
+
+        for (c, &(cos_lim, sin_lim)) in s.clusters.iter().zip(&s.cluster_limit) {
+            let (v, dist) = towards(c.centre, mid);
+            // Widen the cone by the cluster's angular radius and the TX–RX parallax.
+            let delta = 1.01 * (c.radius_m + half_sep) / dist;
+            let threshold = cos_lim * (1.0 - 0.5 * delta * delta) - sin_lim * delta;
+            if sin_lim > 0.0 && dot(v, c.axis) < threshold {
+                continue;
+            }
+            for i in c.first as usize..(c.first + c.count) as usize {
+                let p = s.spec.position[i];
+                let n = s.spec.normal[i];
+                let (ut, dt) = towards(p, tx);
+                let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
+                let (ct, cr) = (dot(n, ut), dot(n, ur));
+                if ct <= 0.0 || cr <= 0.0 {
+                    continue;
+                }
+                let h = add(ut, ur);
+                let cb = dot(n, h) / dot(h, h).sqrt();
+                if cb <= self.cos_cutoff {
+                    continue;
+                }
+                let w = if cb >= self.cos_full {
+                    1.0
+                } else {
+                    let theta = cb.min(1.0).acos();
+                    0.5 * (1.0 + (PI * (theta - self.full_rad) / (self.cutoff_rad - self.full_rad)).cos())
+                };
+                let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
+                let amp = s.spec_weight[i] * 0.5 * (ct + cr) * w * f / (dt * dr);
+                if amp == 0.0 || !self.visible(p, n, ut, dt, ur, dr, same) {
+                    continue;
+                }
+                spec.add(Complex32::new(0.0, -amp), f64::from(dt + dr + extra));
+                count += 1;
+            }
+        }
+
+        for i in 0..s.diff.len() {
+            let p = s.diff.position[i];
+            let n = s.diff.normal[i];
+            let (ut, dt) = towards(p, tx);
+            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
+            let (ct, cr) = (dot(n, ut), dot(n, ur));
+            if ct <= 0.0 || cr <= 0.0 {
+                continue;
+            }
+            // Specular direction of the incident ray, then the lobe around it.
+            let specular = sub(scale(n, 2.0 * ct), ut);
+            let lobe = (0.5 * (1.0 + dot(specular, ur))).max(0.0).powf(s.diff_half_alpha[i]);
+            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
+            let amp = s.diff_weight[i] * ct.sqrt() * lobe * f / (dt * dr);
+            if amp == 0.0 || !self.visible(p, n, ut, dt, ur, dr, same) {
+                continue;
+            }
+            other.add(s.diff_phasor[i] * amp, f64::from(dt + dr + extra));
+            count += 1;
+        }
+
+        for (e, &weight) in s.edges.iter().zip(&s.edge_weight) {
+            let p = e.position;
+            let (ut, dt) = towards(p, tx);
+            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
+            let outside = |u: [f32; 3]| {
+                let (a, b) = (dot(e.n1, u), dot(e.n2, u));
+                if e.convex { a > 0.0 || b > 0.0 } else { a > 0.0 && b > 0.0 }
+            };
+            let rim = e.n1 == e.n2;
+            if !rim && !(outside(ut) && outside(ur)) {
+                continue;
+            }
+            let offset_dir = if rim {
+                if dot(e.n1, ut) >= 0.0 { e.n1 } else { scale(e.n1, -1.0) }
+            } else {
+                let m = add(e.n1, e.n2);
+                scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
+            };
+            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
+            let amp = weight * f / (dt * dr);
+            if amp == 0.0 || !self.visible(p, offset_dir, ut, dt, ur, dr, same) {
+                continue;
+            }
+            other.add(Complex32::new(amp, 0.0), f64::from(dt + dr + extra));
+            count += 1;
+        }
+
+        for &(p, a) in &s.points {
+            let (ut, dt) = towards(p, tx);
+            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
+            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
+            if !self.visible(p, [0.0; 3], ut, dt, ur, dr, same) {
+                continue;
+            }
+            other.add(Complex32::new(a * f / (dt * dr), 0.0), f64::from(dt + dr + extra));
+            count += 1;
+        }
+        count
+    }
+}

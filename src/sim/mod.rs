@@ -1,0 +1,17 @@
+//! The physical forward simulator: scenes in, captures out.
+//!
+//! This module owns the scene format ([`scene`]), the raster aperture ([`aperture`]), the
+//! conversion of geometry into scatterers ([`surface`]), the cardboard occluder ([`occluder`]),
+//! the forward model ([`forward`]) and the top-view ground truth ([`truth`]). It must never use
+//! the reconstruction's forward model, and it must not put isotropic point scatterers on
+//! surfaces: mmNorm lives on specularity, and a simulator that hides it would test nothing.
+
+pub mod aperture;
+pub mod forward;
+pub mod occluder;
+pub mod scene;
+pub mod surface;
+pub mod truth;
+
+pub use forward::{SimOutput, SimStats, simulate};
+pub use scene::{Scene, SceneError};

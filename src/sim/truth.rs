@@ -1,0 +1,55 @@
+//! Ground truth as a depth camera above the scene would see it: the first hit of vertical rays
+//! on a 1 mm grid (the paper's RealSense ground truth, §5).
+
+use rayon::prelude::*;
+
+use crate::geometry::{Bvh, TriMesh};
+
+/// Grid pitch of the top-view truth, metres.
+pub const TOP_GRID_M: f64 = 1e-3;
+
+/// Casts rays straight down on a `grid_m` lattice (cell centres at (k + ½)·grid_m) over the
+/// mesh's footprint and returns the first hit of each ray that hits.
+pub fn top_surface(mesh: &TriMesh, grid_m: f64) -> Vec<[f64; 3]> {
+    let Some((lo, hi)) = mesh.bounds() else {
+        return Vec::new();
+    };
+    let bvh = Bvh::build(mesh);
+    let kx0 = (lo[0] / grid_m).floor() as i64;
+    let kx1 = (hi[0] / grid_m).ceil() as i64;
+    let ky0 = (lo[1] / grid_m).floor() as i64;
+    let ky1 = (hi[1] / grid_m).ceil() as i64;
+    let z_start = hi[2] + 0.01;
+    let depth = (hi[2] - lo[2] + 0.02) as f32;
+    (ky0..ky1)
+        .into_par_iter()
+        .flat_map_iter(|ky| {
+            let bvh = &bvh;
+            (kx0..kx1).filter_map(move |kx| {
+                let x = (kx as f64 + 0.5) * grid_m;
+                let y = (ky as f64 + 0.5) * grid_m;
+                bvh.closest([x as f32, y as f32, z_start as f32], [0.0, 0.0, -1.0], depth)
+                    .map(|h| [x, y, z_start - f64::from(h.t)])
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{pose_from, sphere_mesh};
+
+    #[test]
+    fn sphere_top_view_is_the_upper_hemisphere() {
+        let mesh = sphere_mesh(0.02, 0.001).transformed(&pose_from([0.0, 0.0, 0.05], [0.0; 3]));
+        let top = top_surface(&mesh, TOP_GRID_M);
+        // About π r² / grid² rays hit.
+        let expected = std::f64::consts::PI * 0.02f64.powi(2) / 1e-6;
+        assert!((top.len() as f64 - expected).abs() / expected < 0.03, "{}", top.len());
+        for p in &top {
+            let r = (p[0] * p[0] + p[1] * p[1] + (p[2] - 0.05).powi(2)).sqrt();
+            assert!((r - 0.02).abs() < 2e-4 && p[2] >= 0.05 - 1e-6, "{p:?}");
+        }
+    }
+}
