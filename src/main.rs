@@ -1,1 +1,77 @@
-fn main(){}
+//! `mmnormd`: the command-line front end. The only place that uses `anyhow`.
+
+mod cli;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use tracing_subscriber::EnvFilter;
+
+#[derive(Parser)]
+#[command(name = "mmnormd", version, about = "mmWave NLOS 3-D reconstruction (mmNorm) and its lab system")]
+struct Args {
+    /// More log output (-v debug, -vv trace). RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    /// No progress bars or progress log lines.
+    #[arg(short, long, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a scan of a scene and write a capture directory v1 with its ground truth.
+    Simulate {
+        /// Scene file (TOML); see the README for the format.
+        #[arg(long)]
+        scene: PathBuf,
+        /// Output capture directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Replace an existing capture in OUT.
+        #[arg(long)]
+        force: bool,
+    },
+    /// Check a capture directory and summarise it; optionally draw its aperture power map.
+    Inspect {
+        /// Capture directory v1.
+        capture: PathBuf,
+        /// Write the received power of every antenna over the aperture as a PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
+    /// Parse an IWR1443 CLI profile (.cfg) and print its register codes and derived figures.
+    Profile {
+        /// The .cfg file.
+        cfg: PathBuf,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    let args = Args::parse();
+    let default = match args.verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    let result = match args.command {
+        Command::Simulate { scene, out, force } => cli::simulate::run(&scene, &out, force, args.quiet),
+        Command::Inspect { capture, png } => cli::inspect::run(&capture, png.as_deref()),
+        Command::Profile { cfg } => cli::profile::run(&cfg),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -60,24 +60,14 @@ impl ToneAccumulator {
         }
         let (s8, c8) = (std::f64::consts::TAU * (8.0 * dturn).fract()).sin_cos();
         let (wr, wi) = (c8 as f32, s8 as f32);
-        let n = self.re.len();
-        let full = n / LANES * LANES;
-        for (re, im) in self.re[..full]
-            .chunks_exact_mut(LANES)
-            .zip(self.im[..full].chunks_exact_mut(LANES))
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
-            for j in 0..LANES {
-                re[j] += zr[j];
-                im[j] += zi[j];
-                let r = zr[j] * wr - zi[j] * wi;
-                zi[j] = zr[j] * wi + zi[j] * wr;
-                zr[j] = r;
-            }
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+            unsafe { sweep_avx2_fma(&mut self.re, &mut self.im, zr, zi, (wr, wi)) };
+            return;
         }
-        for j in 0..n - full {
-            self.re[full + j] += zr[j];
-            self.im[full + j] += zi[j];
-        }
+        sweep(&mut self.re, &mut self.im, zr, zi, (wr, wi));
     }
 
     /// Multiplies sample t by `scale[t]` (for frequency-dependent factors common to all
@@ -96,6 +86,51 @@ impl ToneAccumulator {
             o.im += im;
         }
     }
+}
+
+/// Adds the eight-lane phasor sweep `z, z·w, z·w², …` (in blocks of eight samples) to the chirp.
+#[inline(always)]
+fn sweep(
+    re: &mut [f32],
+    im: &mut [f32],
+    mut zr: [f32; LANES],
+    mut zi: [f32; LANES],
+    (wr, wi): (f32, f32),
+) {
+    let n = re.len().min(im.len());
+    let full = n / LANES * LANES;
+    for (re, im) in re[..full]
+        .chunks_exact_mut(LANES)
+        .zip(im[..full].chunks_exact_mut(LANES))
+    {
+        for j in 0..LANES {
+            re[j] += zr[j];
+            im[j] += zi[j];
+            let r = zr[j] * wr - zi[j] * wi;
+            zi[j] = zr[j] * wi + zi[j] * wr;
+            zr[j] = r;
+        }
+    }
+    for j in 0..n - full {
+        re[full + j] += zr[j];
+        im[full + j] += zi[j];
+    }
+}
+
+/// [`sweep`] compiled for AVX2 and FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn sweep_avx2_fma(
+    re: &mut [f32],
+    im: &mut [f32],
+    zr: [f32; LANES],
+    zi: [f32; LANES],
+    w: (f32, f32),
+) {
+    sweep(re, im, zr, zi, w)
 }
 
 #[cfg(test)]

@@ -9,13 +9,15 @@
 //!    `−j·ρ·A/λ_t · ½(cos θ_tx + cos θ_rx) · W(θ_b) / (d_tx·d_rx)` along its path, the scalar PO
 //!    integrand. Specularity is not imposed: it emerges from the coherent sum, whose stationary
 //!    point is the mirror point. W is a smooth window on θ_b, the angle between the sample
-//!    normal and the bistatic bisector (1 up to `specular_full_deg`, raised-cosine to 0 at
-//!    `specular_cutoff_deg`). It keeps the stationary-phase region (the first Fresnel zone spans
-//!    about 4° at 40 cm) and drops the far-off-specular part of the integral, which cancels
-//!    anyway except at discontinuities. Those discontinuities are handled by term 3. The −j and
-//!    the 1/λ_t make the stationary-phase sum equal image theory; the test
-//!    `plate_return_matches_image_theory` checks it, and `sphere_return_matches_geometric_optics`
-//!    checks a sphere against a/(2R(R+a)).
+//!    normal and the bistatic bisector, measured in Fresnel zones: near a mirror point the
+//!    first zone spans θ_F = √(λ0·(κ + 1/d)/2) of θ_b, with κ the surface curvature and d the
+//!    mean leg length (4° for a plate at 40 cm, 12° for a 5 cm sphere). W is 1 up to
+//!    `specular_full_zones`·θ_F and falls as a raised cosine to 0 at
+//!    `specular_cutoff_zones`·θ_F. It keeps the stationary-phase region and drops the
+//!    far-off-specular part of the integral, which cancels anyway except at discontinuities;
+//!    those are handled by term 3. The −j and the 1/λ_t make the stationary-phase sum equal
+//!    image theory. The tests `plate_return_matches_image_theory` and
+//!    `sphere_return_matches_geometric_optics` (a/(2R(R+a))) check both.
 //! 2. **Diffuse (directive model).** Samples at a coarser spacing, each with a fixed random
 //!    phase (frozen roughness), scatter with the Degli-Esposti directive lobe: bistatic RCS
 //!    `σ = 4π·S²·A·cos θ_i·((1 + cos ψ)/2)^α · (α + 1)/(4π)`, where ψ is the angle between the
@@ -80,7 +82,7 @@ struct Scatterers {
     /// ρ·A per specular sample.
     spec_weight: Vec<f32>,
     clusters: Vec<Cluster>,
-    /// Cosine and sine of (cutoff + cone half-angle) per cluster, for culling.
+    /// Cosine and sine of (widest window + cone half-angle) per cluster, for culling.
     cluster_limit: Vec<(f32, f32)>,
     diff: Samples,
     /// S·√(A·(α+1)/4π) per diffuse sample, α/2, and the roughness phasor.
@@ -90,17 +92,35 @@ struct Scatterers {
     edges: Vec<EdgeSample>,
     edge_weight: Vec<f32>,
     points: Vec<([f32; 3], f32)>,
+    /// Object index of each cluster, diffuse sample and edge sample.
+    cluster_object: Vec<u16>,
+    diff_object: Vec<u16>,
+    edge_object: Vec<u16>,
+    /// One BVH per object (empty for point targets) and whether the object is convex.
+    bvhs: Vec<Bvh>,
+    convex: Vec<bool>,
 }
+
+/// No object: point targets test every object's geometry.
+const NO_OBJECT: u16 = u16::MAX;
 
 struct Ctx<'a> {
     s: &'a Scatterers,
-    bvh: &'a Bvh,
     pattern: Pattern,
     occluder: Option<&'a Occluder>,
-    cos_full: f32,
-    cos_cutoff: f32,
-    full_rad: f32,
-    cutoff_rad: f32,
+    full_zones: f32,
+    cutoff_zones: f32,
+    /// λ0/2, for the Fresnel-zone width.
+    half_lambda0_m: f32,
+}
+
+/// Largest window the specular term uses, radians.
+const MAX_WINDOW_RAD: f32 = 1.45;
+
+/// Angular width of the first Fresnel zone in θ_b for curvature `kappa` and leg length `d`.
+#[inline]
+fn fresnel_zone_rad(half_lambda0_m: f32, kappa_per_m: f32, d_m: f32) -> f32 {
+    (half_lambda0_m * (kappa_per_m + 1.0 / d_m)).sqrt()
 }
 
 #[inline]
@@ -143,17 +163,14 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone());
     let antennas = raster_antennas(&scene.aperture, &rx_channels, lambda0_m);
     let (scatterers, truth_mesh) = prepare(scene);
-    let bvh = Bvh::build(&truth_mesh);
     let set = &scene.settings;
     let ctx = Ctx {
         s: &scatterers,
-        bvh: &bvh,
         pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
         occluder: scene.occluder.as_ref(),
-        cos_full: (set.specular_full_deg.to_radians() as f32).cos(),
-        cos_cutoff: (set.specular_cutoff_deg.to_radians() as f32).cos(),
-        full_rad: set.specular_full_deg.to_radians() as f32,
-        cutoff_rad: set.specular_cutoff_deg.to_radians() as f32,
+        full_zones: set.specular_full_zones as f32,
+        cutoff_zones: set.specular_cutoff_zones as f32,
+        half_lambda0_m: (lambda0_m / 2.0) as f32,
     };
     let t = plan.samples_per_chirp;
     let n = antennas.tx_m.len();
@@ -279,11 +296,17 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
         edges: Vec::new(),
         edge_weight: Vec::new(),
         points: Vec::new(),
+        cluster_object: Vec::new(),
+        diff_object: Vec::new(),
+        edge_object: Vec::new(),
+        bvhs: Vec::new(),
+        convex: Vec::new(),
     };
-    let cutoff = set.specular_cutoff_deg.to_radians();
+    let half_lambda0_m = (scene.plan.first_wavelength_m() / 2.0) as f32;
     let mut rough = Rng::for_stream(scene.seed, ROUGHNESS_STREAM, 0);
-    for object in &scene.objects {
+    for (index, object) in scene.objects.iter().enumerate() {
         let m = object.material;
+        let id = index.min(usize::from(NO_OBJECT) - 1) as u16;
         match &object.geometry {
             ObjectGeometry::Point {
                 position_m,
@@ -291,6 +314,8 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
             } => {
                 let amp = (rcs_m2 / (4.0 * std::f64::consts::PI)).sqrt() as f32;
                 s.points.push((f32v(*position_m), amp));
+                s.bvhs.push(Bvh::build(&TriMesh::default()));
+                s.convex.push(true);
             }
             ObjectGeometry::Surface(mesh) => {
                 let normals = surface::corner_normals(mesh, set.crease_angle_deg);
@@ -301,14 +326,24 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
                     .extend(spec.area_m2.iter().map(|a| a * m.reflectivity as f32));
                 for mut c in clusters {
                     c.first += base;
-                    let limit = (cutoff + f64::from(c.cos_half_angle).acos()).min(std::f64::consts::PI);
+                    // The widest window any antenna can give this cluster: the nearest
+                    // antenna is at least the height gap away.
+                    let gap = (scene.aperture.z_m as f32 - c.centre[2] - c.radius_m).max(1e-3);
+                    let widest = (set.specular_cutoff_zones as f32
+                        * fresnel_zone_rad(half_lambda0_m, c.curvature_per_m, gap))
+                    .min(MAX_WINDOW_RAD);
+                    let limit = (f64::from(widest) + f64::from(c.cos_half_angle).acos())
+                        .min(std::f64::consts::PI);
                     s.cluster_limit
                         .push((limit.cos() as f32, limit.sin() as f32));
                     s.clusters.push(c);
+                    s.cluster_object.push(id);
                 }
-                append(&mut s.spec, spec);
+                s.spec.append(spec);
                 if m.diffuse > 0.0 {
-                    let (diff, _) = surface::sample_surface(mesh, &normals, set.diffuse_spacing_m);
+                    let diff =
+                        surface::sample_by_area(mesh, &normals, set.diffuse_spacing_m, &mut rough);
+                    s.diff_object.extend(std::iter::repeat_n(id, diff.len()));
                     let norm = (m.diffuse_exponent + 1.0) / (4.0 * std::f64::consts::PI);
                     for &a in &diff.area_m2 {
                         s.diff_weight
@@ -317,7 +352,7 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
                         let (sn, cs) = (std::f64::consts::TAU * rough.uniform()).sin_cos();
                         s.diff_phasor.push(Complex32::new(cs as f32, sn as f32));
                     }
-                    append(&mut s.diff, diff);
+                    s.diff.append(diff);
                 }
                 if m.edge > 0.0 {
                     let edges =
@@ -327,8 +362,11 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
                             .iter()
                             .map(|e| (m.edge as f32) * e.length_m / (2.0 * PI)),
                     );
+                    s.edge_object.extend(std::iter::repeat_n(id, edges.len()));
                     s.edges.extend(edges);
                 }
+                s.bvhs.push(Bvh::build(mesh));
+                s.convex.push(surface::is_convex(mesh));
                 truth.append(mesh);
             }
         }
@@ -336,17 +374,14 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
     (s, truth)
 }
 
-fn append(into: &mut Samples, from: Samples) {
-    into.position.extend(from.position);
-    into.normal.extend(from.normal);
-    into.area_m2.extend(from.area_m2);
-}
-
 impl Ctx<'_> {
-    /// Whether the straight leg from `origin` to `a` (distance `d`, direction `u`) is free.
+    /// Whether the straight leg from `origin` (distance `d`, direction `u`) is free of every
+    /// object's geometry, skipping `own` when `skip_own` (a convex object seen from the front).
     #[inline]
-    fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32) -> bool {
-        !self.bvh.occluded(origin, u, d)
+    fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32, own: u16, skip_own: bool) -> bool {
+        self.s.bvhs.iter().enumerate().all(|(k, bvh)| {
+            (skip_own && k == usize::from(own)) || !bvh.occluded(origin, u, d)
+        })
     }
 
     /// Pattern and sheet factors and the sheet's extra path for both legs.
@@ -366,11 +401,27 @@ impl Ctx<'_> {
         (amp, extra)
     }
 
-    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`.
+    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`. `face` is a
+    /// face normal at `p` of object `own`: when both legs leave on its front side and the
+    /// object is convex, the object cannot block them.
     #[inline]
-    fn visible(&self, p: [f32; 3], offset_dir: [f32; 3], ut: [f32; 3], dt: f32, ur: [f32; 3], dr: f32, same: bool) -> bool {
+    #[allow(clippy::too_many_arguments)]
+    fn visible(
+        &self,
+        p: [f32; 3],
+        offset_dir: [f32; 3],
+        (ut, dt): ([f32; 3], f32),
+        (ur, dr): ([f32; 3], f32),
+        same: bool,
+        own: u16,
+        face: [f32; 3],
+    ) -> bool {
+        let skip_own = own != NO_OBJECT
+            && self.s.convex[usize::from(own)]
+            && dot(face, ut) > 0.0
+            && dot(face, ur) > 0.0;
         let o = add(p, scale(offset_dir, RAY_OFFSET_M));
-        self.clear(o, ut, dt) && (same || self.clear(o, ur, dr))
+        self.clear(o, ut, dt, own, skip_own) && (same || self.clear(o, ur, dr, own, skip_own))
     }
 
     /// Sums every scatterer's return for one virtual antenna. Specular terms go to `spec`
@@ -388,7 +439,9 @@ impl Ctx<'_> {
         let s = self.s;
         let mut count = 0u64;
 
-        for (c, &(cos_lim, sin_lim)) in s.clusters.iter().zip(&s.cluster_limit) {
+        for ((c, &(cos_lim, sin_lim)), &own) in
+            s.clusters.iter().zip(&s.cluster_limit).zip(&s.cluster_object)
+        {
             let (v, dist) = towards(c.centre, mid);
             // Widen the cone by the cluster's angular radius and the TX–RX parallax.
             let delta = 1.01 * (c.radius_m + half_sep) / dist;
@@ -406,19 +459,21 @@ impl Ctx<'_> {
                     continue;
                 }
                 let h = add(ut, ur);
-                let cb = dot(n, h) / dot(h, h).sqrt();
-                if cb <= self.cos_cutoff {
+                let theta = (dot(n, h) / dot(h, h).sqrt()).min(1.0).acos();
+                let zone = fresnel_zone_rad(self.half_lambda0_m, c.curvature_per_m, 0.5 * (dt + dr));
+                let full = self.full_zones * zone;
+                let cutoff = (self.cutoff_zones * zone).min(MAX_WINDOW_RAD);
+                if theta >= cutoff {
                     continue;
                 }
-                let w = if cb >= self.cos_full {
+                let w = if theta <= full {
                     1.0
                 } else {
-                    let theta = cb.min(1.0).acos();
-                    0.5 * (1.0 + (PI * (theta - self.full_rad) / (self.cutoff_rad - self.full_rad)).cos())
+                    0.5 * (1.0 + (PI * (theta - full) / (cutoff - full)).cos())
                 };
                 let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
                 let amp = s.spec_weight[i] * 0.5 * (ct + cr) * w * f / (dt * dr);
-                if amp == 0.0 || !self.visible(p, n, ut, dt, ur, dr, same) {
+                if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, own, c.axis) {
                     continue;
                 }
                 spec.add(Complex32::new(0.0, -amp), f64::from(dt + dr + extra));
@@ -440,14 +495,15 @@ impl Ctx<'_> {
             let lobe = (0.5 * (1.0 + dot(specular, ur))).max(0.0).powf(s.diff_half_alpha[i]);
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = s.diff_weight[i] * ct.sqrt() * lobe * f / (dt * dr);
-            if amp == 0.0 || !self.visible(p, n, ut, dt, ur, dr, same) {
+            let face = s.diff.face_normal[i];
+            if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, s.diff_object[i], face) {
                 continue;
             }
             other.add(s.diff_phasor[i] * amp, f64::from(dt + dr + extra));
             count += 1;
         }
 
-        for (e, &weight) in s.edges.iter().zip(&s.edge_weight) {
+        for ((e, &weight), &own) in s.edges.iter().zip(&s.edge_weight).zip(&s.edge_object) {
             let p = e.position;
             let (ut, dt) = towards(p, tx);
             let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
@@ -467,7 +523,9 @@ impl Ctx<'_> {
             };
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = weight * f / (dt * dr);
-            if amp == 0.0 || !self.visible(p, offset_dir, ut, dt, ur, dr, same) {
+            // The face the legs leave from: the one that sees the TX (either, for a rim).
+            let face = if dot(e.n1, ut) > 0.0 { e.n1 } else if rim { scale(e.n1, -1.0) } else { e.n2 };
+            if amp == 0.0 || !self.visible(p, offset_dir, (ut, dt), (ur, dr), same, own, face) {
                 continue;
             }
             other.add(Complex32::new(amp, 0.0), f64::from(dt + dr + extra));
@@ -478,7 +536,7 @@ impl Ctx<'_> {
             let (ut, dt) = towards(p, tx);
             let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-            if !self.visible(p, [0.0; 3], ut, dt, ur, dr, same) {
+            if !self.visible(p, [0.0; 3], (ut, dt), (ur, dr), same, NO_OBJECT, [0.0; 3]) {
                 continue;
             }
             other.add(Complex32::new(a * f / (dt * dr), 0.0), f64::from(dt + dr + extra));

@@ -120,9 +120,9 @@ fn default_loss() -> f64 {
 #[serde(deny_unknown_fields)]
 struct SimulationSpec {
     #[serde(default = "default_full")]
-    specular_full_deg: f64,
+    specular_full_zones: f64,
     #[serde(default = "default_cutoff")]
-    specular_cutoff_deg: f64,
+    specular_cutoff_zones: f64,
     #[serde(default = "default_crease")]
     crease_angle_deg: f64,
     sample_spacing_m: Option<f64>,
@@ -134,8 +134,8 @@ struct SimulationSpec {
 impl Default for SimulationSpec {
     fn default() -> Self {
         SimulationSpec {
-            specular_full_deg: default_full(),
-            specular_cutoff_deg: default_cutoff(),
+            specular_full_zones: default_full(),
+            specular_cutoff_zones: default_cutoff(),
             crease_angle_deg: default_crease(),
             sample_spacing_m: None,
             diffuse_spacing_m: None,
@@ -145,16 +145,16 @@ impl Default for SimulationSpec {
 }
 
 fn default_full() -> f64 {
-    8.0
+    2.0
 }
 fn default_cutoff() -> f64 {
-    16.0
+    4.0
 }
 fn default_crease() -> f64 {
     30.0
 }
 fn default_tessellation() -> f64 {
-    0.002
+    0.0025
 }
 
 #[derive(Debug, Deserialize)]
@@ -249,8 +249,10 @@ pub struct ApertureGrid {
 /// Numerical settings of the simulator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SimSettings {
-    pub specular_full_deg: f64,
-    pub specular_cutoff_deg: f64,
+    /// The specular window is 1 up to this many Fresnel zones from the mirror point...
+    pub specular_full_zones: f64,
+    /// ...and falls to 0 (raised cosine) at this many.
+    pub specular_cutoff_zones: f64,
     pub crease_angle_deg: f64,
     pub sample_spacing_m: f64,
     pub diffuse_spacing_m: f64,
@@ -382,13 +384,13 @@ impl Scene {
         let lambda0_m = plan.first_wavelength_m();
 
         let s = &file.simulation;
-        let full = c.non_negative("simulation.specular_full_deg", s.specular_full_deg)?;
-        let cutoff = c.positive("simulation.specular_cutoff_deg", s.specular_cutoff_deg)?;
-        if cutoff <= full || cutoff >= 90.0 {
+        let full = c.non_negative("simulation.specular_full_zones", s.specular_full_zones)?;
+        let cutoff = c.positive("simulation.specular_cutoff_zones", s.specular_cutoff_zones)?;
+        if cutoff <= full {
             return Err(c.fail(
-                "simulation.specular_cutoff_deg",
+                "simulation.specular_cutoff_zones",
                 cutoff,
-                "must lie above specular_full_deg and below 90",
+                "must be larger than specular_full_zones",
             ));
         }
         let sample_spacing_m = c.positive(
@@ -403,8 +405,8 @@ impl Scene {
             ));
         }
         let settings = SimSettings {
-            specular_full_deg: full,
-            specular_cutoff_deg: cutoff,
+            specular_full_zones: full,
+            specular_cutoff_zones: cutoff,
             crease_angle_deg: c.positive("simulation.crease_angle_deg", s.crease_angle_deg)?,
             sample_spacing_m,
             diffuse_spacing_m: c.positive(

@@ -10,8 +10,13 @@
 //!   integer for which the longest sub-triangle median is ≤ 1.5·spacing: neighbouring samples are
 //!   then at most `spacing` apart. With the default spacing of λ/4 that is about one sample per
 //!   (λ/4)².
-//! - **Diffuse samples.** The same construction at a coarser spacing (λ by default): diffuse
-//!   scattering is incoherent, so only its mean power per area matters, not λ/4 phase sampling.
+//! - **Diffuse samples.** One sample per `spacing²` of area (λ² by default), placed by systematic
+//!   area sampling at a uniformly random point of the triangle where each cell boundary falls.
+//!   Diffuse scattering is incoherent, so only its mean power per area matters, not λ/4 phase
+//!   sampling.
+//! - **Convexity.** [`is_convex`] tells whether every vertex lies behind every face's plane. A ray
+//!   leaving a point of such a mesh on the front side of that point's face can never meet the
+//!   mesh again, so the simulator skips those self-occlusion tests exactly.
 //! - **Edges.** A mesh edge is sharp when it has one face (a free rim, e.g. a plate), more than
 //!   two, or two faces whose normals differ by more than the crease angle. Sharp edges are cut
 //!   into pieces no longer than `spacing`.
@@ -21,6 +26,7 @@ use std::collections::HashMap;
 use nalgebra::Vector3;
 
 use crate::geometry::TriMesh;
+use crate::signal::Rng;
 
 /// Samples of one triangle, for culling: bounding sphere and normal cone.
 #[derive(Debug, Clone, Copy)]
@@ -30,6 +36,8 @@ pub struct Cluster {
     pub axis: [f32; 3],
     /// Cosine of the normal cone's half-angle.
     pub cos_half_angle: f32,
+    /// Largest curvature across the triangle (normal turn per metre between its corners).
+    pub curvature_per_m: f32,
     pub first: u32,
     pub count: u32,
 }
@@ -38,15 +46,31 @@ pub struct Cluster {
 #[derive(Debug, Clone, Default)]
 pub struct Samples {
     pub position: Vec<[f32; 3]>,
+    /// Shading normal (interpolated across smooth parts).
     pub normal: Vec<[f32; 3]>,
+    /// Normal of the flat triangle the sample lies on.
+    pub face_normal: Vec<[f32; 3]>,
     pub area_m2: Vec<f32>,
 }
 
+fn f32v(v: Vector3<f64>) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
 impl Samples {
-    fn push(&mut self, p: Vector3<f64>, n: Vector3<f64>, area: f64) {
-        self.position.push([p.x as f32, p.y as f32, p.z as f32]);
-        self.normal.push([n.x as f32, n.y as f32, n.z as f32]);
+    fn push(&mut self, p: Vector3<f64>, n: Vector3<f64>, face: Vector3<f64>, area: f64) {
+        self.position.push(f32v(p));
+        self.normal.push(f32v(n));
+        self.face_normal.push(f32v(face));
         self.area_m2.push(area as f32);
+    }
+
+    /// Appends another set.
+    pub fn append(&mut self, other: Samples) {
+        self.position.extend(other.position);
+        self.normal.extend(other.normal);
+        self.face_normal.extend(other.face_normal);
+        self.area_m2.extend(other.area_m2);
     }
 
     pub fn len(&self) -> usize {
@@ -140,10 +164,8 @@ pub fn sample_surface(
         let mut emit = |bu: f64, bv: f64| {
             // (bu, bv) are barycentric coordinates of the centroid along b and c.
             let p = a + (b - a) * bu + (c - a) * bv;
-            let nrm = (corner_n[0] * (1.0 - bu - bv) + corner_n[1] * bu + corner_n[2] * bv)
-                .try_normalize(0.0)
-                .unwrap_or(face_n);
-            samples.push(p, nrm, sub_area);
+            let nrm = interpolated_normal(corner_n, bu, bv, face_n);
+            samples.push(p, nrm, face_n, sub_area);
         };
         let nf = n as f64;
         for i in 0..n {
@@ -166,16 +188,85 @@ pub fn sample_surface(
             .map(|cn| cn.dot(&face_n))
             .fold(1.0, f64::min)
             .clamp(-1.0, 1.0);
+        let corners_p = [a, b, c];
+        let curvature = [(0, 1), (1, 2), (2, 0)]
+            .iter()
+            .map(|&(i, j)| {
+                let turn = corner_n[i].dot(&corner_n[j]).clamp(-1.0, 1.0).acos();
+                turn / (corners_p[i] - corners_p[j]).norm().max(1e-12)
+            })
+            .fold(0.0, f64::max);
         clusters.push(Cluster {
             centre: [centre.x as f32, centre.y as f32, centre.z as f32],
             radius_m: radius as f32,
             axis: [face_n.x as f32, face_n.y as f32, face_n.z as f32],
             cos_half_angle: cos_half as f32,
+            curvature_per_m: curvature as f32,
             first,
             count: samples.len() as u32 - first,
         });
     }
     (samples, clusters)
+}
+
+fn interpolated_normal(corner_n: &[Vector3<f64>; 3], bu: f64, bv: f64, face: Vector3<f64>) -> Vector3<f64> {
+    (corner_n[0] * (1.0 - bu - bv) + corner_n[1] * bu + corner_n[2] * bv)
+        .try_normalize(0.0)
+        .unwrap_or(face)
+}
+
+/// One sample per `spacing_m²` of area, by systematic area sampling over the triangles; each
+/// sample carries an equal share of the total area.
+pub fn sample_by_area(
+    mesh: &TriMesh,
+    normals: &[[Vector3<f64>; 3]],
+    spacing_m: f64,
+    rng: &mut Rng,
+) -> Samples {
+    let cell = spacing_m * spacing_m;
+    let mut samples = Samples::default();
+    let mut next = rng.uniform() * cell;
+    let mut walked = 0.0;
+    for (f, corner_n) in normals.iter().enumerate() {
+        let [a, b, c] = mesh.corners(f);
+        let cr = (b - a).cross(&(c - a));
+        let area = 0.5 * cr.norm();
+        if area <= 0.0 {
+            continue;
+        }
+        let face = cr / (2.0 * area);
+        walked += area;
+        while next < walked {
+            next += cell;
+            // A uniform point of the triangle.
+            let (r1, r2) = (rng.uniform().sqrt(), rng.uniform());
+            let (bu, bv) = (r1 * (1.0 - r2), r1 * r2);
+            let p = a + (b - a) * bu + (c - a) * bv;
+            samples.push(p, interpolated_normal(corner_n, bu, bv, face), face, cell);
+        }
+    }
+    let share = (walked / samples.len().max(1) as f64) as f32;
+    samples.area_m2.fill(share);
+    samples
+}
+
+/// Whether every vertex lies on or behind every face's plane (within rounding).
+pub fn is_convex(mesh: &TriMesh) -> bool {
+    let Some((lo, hi)) = mesh.bounds() else {
+        return true;
+    };
+    let size = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
+    let tolerance = 1e-9 * size.max(1e-3);
+    (0..mesh.triangles.len()).all(|f| {
+        let [a, b, c] = mesh.corners(f);
+        let Some(n) = (b - a).cross(&(c - a)).try_normalize(0.0) else {
+            return true;
+        };
+        let d = n.dot(&a);
+        mesh.vertices_m
+            .iter()
+            .all(|v| n.dot(&Vector3::from(*v)) <= d + tolerance)
+    })
 }
 
 /// Cuts the sharp edges of `mesh` into pieces no longer than `spacing_m`.
@@ -270,6 +361,25 @@ mod tests {
             assert!(nearest <= spacing as f32 * 1.0001, "{nearest}");
         }
         assert!(s.normal.iter().all(|n| (n[2] - 1.0).abs() < 1e-6));
+    }
+
+    #[test]
+    fn area_sampling_keeps_the_area_and_convexity_is_detected() {
+        let sphere = sphere_mesh(0.05, 0.003);
+        let normals = corner_normals(&sphere, 30.0);
+        let s = sample_by_area(&sphere, &normals, 0.004, &mut Rng::new(3));
+        let total: f64 = s.area_m2.iter().map(|&a| f64::from(a)).sum();
+        assert!((total - sphere.area_m2()).abs() / total < 1e-5);
+        let expected = sphere.area_m2() / 0.004f64.powi(2);
+        assert!((s.len() as f64 - expected).abs() <= 1.0, "{} vs {expected}", s.len());
+        assert!(is_convex(&sphere));
+        assert!(is_convex(&plate_mesh([0.1, 0.1], 0.01)));
+        let mut two = box_mesh([0.02, 0.02, 0.02], 0.01);
+        two.append(&box_mesh([0.02, 0.02, 0.02], 0.01).transformed(&crate::geometry::pose_from(
+            [0.05, 0.0, 0.0],
+            [0.0; 3],
+        )));
+        assert!(!is_convex(&two));
     }
 
     #[test]

@@ -1,0 +1,119 @@
+use std::path::Path;
+
+use anyhow::Result;
+use mmnormd::capture::{read_capture_dir, truth_files};
+use mmnormd::preview::ScalarImage;
+use num_complex::Complex32;
+use rustfft::FftPlanner;
+
+/// Largest side of the aperture picture, pixels.
+const MAX_SIDE: usize = 320;
+
+pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
+    let c = read_capture_dir(dir)?;
+    let n = c.antennas();
+    let t = c.plan.samples_per_chirp;
+    let centres: Vec<[f64; 3]> = c
+        .tx_m
+        .iter()
+        .zip(&c.rx_m)
+        .map(|(a, b)| [0, 1, 2].map(|k| 0.5 * (a[k] + b[k])))
+        .collect();
+    let (lo, hi) = centres.iter().fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), p| ([0, 1, 2].map(|k| lo[k].min(p[k])), [0, 1, 2].map(|k| hi[k].max(p[k]))),
+    );
+    let power_db: Vec<f32> = (0..n)
+        .map(|i| {
+            let p: f32 = c.chirp(i).iter().map(Complex32::norm_sqr).sum::<f32>() / t as f32;
+            10.0 * p.max(1e-30).log10()
+        })
+        .collect();
+    let peak_db = power_db.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let mut sorted = power_db.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median_db = sorted[sorted.len() / 2];
+
+    // Mean range profile: |FFT| of each chirp, 4× zero-padded, averaged.
+    let pad = 4 * t;
+    let fft = FftPlanner::<f32>::new().plan_fft_forward(pad);
+    let mut profile = vec![0f32; pad];
+    let mut buf = vec![Complex32::new(0.0, 0.0); pad];
+    let stride = (n / 2000).max(1);
+    for i in (0..n).step_by(stride) {
+        buf.fill(Complex32::new(0.0, 0.0));
+        buf[..t].copy_from_slice(c.chirp(i));
+        fft.process(&mut buf);
+        for (p, v) in profile.iter_mut().zip(&buf) {
+            *p += v.norm();
+        }
+    }
+    let half = pad / 2;
+    let (peak_bin, _) = profile[..half]
+        .iter()
+        .enumerate()
+        .fold((0, f32::NEG_INFINITY), |b, (k, &v)| if v > b.1 { (k, v) } else { b });
+    // With h ∝ exp(+j2π·f_t·d/c) the FFT peaks at bin d·step·T/c (one-way range d/2).
+    let round_trip_m = peak_bin as f64 / pad as f64 * mmnormd::SPEED_OF_LIGHT_M_PER_S
+        / c.plan.frequency_step_hz.abs();
+    println!("capture {}", dir.display());
+    println!("  description    {}", c.description);
+    println!("  antennas       {n} × {t} samples");
+    println!(
+        "  frequencies    {:.6} GHz + k·{:.3} kHz ({:.4} GHz swept, range bin {:.2} cm)",
+        c.plan.start_frequency_hz / 1e9,
+        c.plan.frequency_step_hz / 1e3,
+        c.plan.bandwidth_hz() / 1e9,
+        c.plan.range_bin_m() * 100.0
+    );
+    println!("  range offset   {} m", c.range_offset_m);
+    println!(
+        "  aperture       x {:.4}…{:.4} m, y {:.4}…{:.4} m, z {:.4}…{:.4} m (virtual centres)",
+        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    );
+    println!("  power          peak {peak_db:.1} dB, median {median_db:.1} dB (per sample)");
+    println!(
+        "  strongest echo round trip {:.3} m incl. offset → one-way {:.3} m without it",
+        round_trip_m,
+        (round_trip_m - c.range_offset_m) / 2.0
+    );
+    let truth = truth_files(dir);
+    println!(
+        "  truth          mesh {}, top view {}",
+        truth.mesh.as_ref().map_or("none".into(), |p| p.display().to_string()),
+        truth.top_points.as_ref().map_or("none".into(), |p| p.display().to_string())
+    );
+    if let Some(path) = png {
+        let image = aperture_image(&centres, &power_db, lo, hi);
+        image.write_png(path, peak_db - 40.0, peak_db, 2)?;
+        println!(
+            "  wrote {} ({}×{} cells, colour = received power, top 40 dB; +x right, +y up)",
+            path.display(),
+            image.width,
+            image.height
+        );
+    }
+    Ok(())
+}
+
+/// Places each antenna's power in a cell of an image spanning the aperture (max per cell).
+fn aperture_image(centres: &[[f64; 3]], power_db: &[f32], lo: [f64; 3], hi: [f64; 3]) -> ScalarImage {
+    let (wx, wy) = ((hi[0] - lo[0]).max(1e-9), (hi[1] - lo[1]).max(1e-9));
+    let cell = wx.max(wy) / MAX_SIDE as f64;
+    let width = ((wx / cell).floor() as usize + 1).min(MAX_SIDE + 1);
+    let height = ((wy / cell).floor() as usize + 1).min(MAX_SIDE + 1);
+    let mut values = vec![f32::NAN; width * height];
+    for (p, &v) in centres.iter().zip(power_db) {
+        let x = (((p[0] - lo[0]) / cell) as usize).min(width - 1);
+        let y = height - 1 - (((p[1] - lo[1]) / cell) as usize).min(height - 1);
+        let cell_v = &mut values[y * width + x];
+        if cell_v.is_nan() || v > *cell_v {
+            *cell_v = v;
+        }
+    }
+    ScalarImage {
+        width,
+        height,
+        values,
+    }
+}
