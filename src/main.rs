@@ -8,7 +8,11 @@ use clap::{Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
-#[command(name = "mmnormd", version, about = "mmWave NLOS 3-D reconstruction (mmNorm) and its lab system")]
+#[command(
+    name = "mmnormd",
+    version,
+    about = "mmWave NLOS 3-D reconstruction (mmNorm) and its lab system"
+)]
 struct Args {
     /// More log output (-v debug, -vv trace). RUST_LOG overrides.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
@@ -63,7 +67,9 @@ fn main() -> std::process::ExitCode {
         .with_target(false)
         .init();
     let result = match args.command {
-        Command::Simulate { scene, out, force } => cli::simulate::run(&scene, &out, force, args.quiet),
+        Command::Simulate { scene, out, force } => {
+            cli::simulate::run(&scene, &out, force, args.quiet)
+        }
         Command::Inspect { capture, png } => cli::inspect::run(&capture, png.as_deref()),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };

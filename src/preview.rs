@@ -37,7 +37,13 @@ fn colour(x: f32) -> [u8; 3] {
 impl ScalarImage {
     /// Writes the image scaled so `lo` maps to the bottom of the colour map and `hi` to the top,
     /// each cell drawn as a `zoom`×`zoom` block.
-    pub fn write_png(&self, path: &Path, lo: f32, hi: f32, zoom: usize) -> Result<(), PreviewError> {
+    pub fn write_png(
+        &self,
+        path: &Path,
+        lo: f32,
+        hi: f32,
+        zoom: usize,
+    ) -> Result<(), PreviewError> {
         let err = |reason: String| PreviewError {
             path: path.display().to_string(),
             reason,
@@ -49,7 +55,11 @@ impl ScalarImage {
         for y in 0..h {
             for x in 0..w {
                 let v = self.values[(y / zoom) * self.width + x / zoom];
-                let c = if v.is_nan() { [40, 40, 40] } else { colour((v - lo) / span) };
+                let c = if v.is_nan() {
+                    [40, 40, 40]
+                } else {
+                    colour((v - lo) / span)
+                };
                 rgb[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&c);
             }
         }
@@ -58,7 +68,9 @@ impl ScalarImage {
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(|e| err(e.to_string()))?;
-        writer.write_image_data(&rgb).map_err(|e| err(e.to_string()))?;
+        writer
+            .write_image_data(&rgb)
+            .map_err(|e| err(e.to_string()))?;
         writer.finish().map_err(|e| err(e.to_string()))
     }
 }

@@ -3,20 +3,12 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use mmnormd::capture::{Capture, FrequencyPlan, read_capture_dir, write_capture_dir};
 use mmnormd::capture::npy;
+use mmnormd::capture::{Capture, FrequencyPlan, read_capture_dir, write_capture_dir};
 use num_complex::Complex32;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/numpy_capture")
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    fs::create_dir_all(to).unwrap();
-    for e in fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        fs::copy(e.path(), to.join(e.file_name())).unwrap();
-    }
 }
 
 fn small_capture() -> Capture {
@@ -65,8 +57,12 @@ fn numpy_written_capture_is_read_and_written_back_byte_identically() {
 #[test]
 fn round_trip_is_bit_exact_including_subnormals_and_extra_keys() {
     let mut c = small_capture();
-    c.extra.insert("operator".into(), serde_json::json!({"name": "lab", "run": 7}));
-    c.extra.insert("z_first".into(), serde_json::json!(0.1 + 0.2));
+    c.extra.insert(
+        "operator".into(),
+        serde_json::json!({"name": "lab", "run": 7}),
+    );
+    c.extra
+        .insert("z_first".into(), serde_json::json!(0.1 + 0.2));
     let dir = tempfile::tempdir().unwrap();
     write_capture_dir(dir.path(), &c).unwrap();
     let back = read_capture_dir(dir.path()).unwrap();
@@ -98,7 +94,10 @@ fn damaged_captures_are_refused_naming_file_and_problem() {
         let bytes = fs::read(d.join("samples.npy")).unwrap();
         fs::write(d.join("samples.npy"), &bytes[..bytes.len() - 3]).unwrap();
     });
-    assert!(e.contains("samples.npy") && e.contains("93 data bytes"), "{e}");
+    assert!(
+        e.contains("samples.npy") && e.contains("93 data bytes"),
+        "{e}"
+    );
 
     let e = refusal(|d| {
         let f32_rows: Vec<u8> = {
@@ -108,12 +107,18 @@ fn damaged_captures_are_refused_naming_file_and_problem() {
         };
         fs::write(d.join("tx.npy"), f32_rows).unwrap();
     });
-    assert!(e.contains("tx.npy") && e.contains("'<f4'") && e.contains("float64"), "{e}");
+    assert!(
+        e.contains("tx.npy") && e.contains("'<f4'") && e.contains("float64"),
+        "{e}"
+    );
 
     let e = refusal(|d| {
         fs::write(d.join("tx.npy"), npy::encode_f64_rows(&[[0.0; 3]; 2])).unwrap();
     });
-    assert!(e.contains("tx.npy") && e.contains("2 antennas") && e.contains("antennas = 3"), "{e}");
+    assert!(
+        e.contains("tx.npy") && e.contains("2 antennas") && e.contains("antennas = 3"),
+        "{e}"
+    );
 
     let e = refusal(|d| {
         let mut rows = vec![[0.0, 0.0, 0.4]; 3];
@@ -131,19 +136,34 @@ fn damaged_captures_are_refused_naming_file_and_problem() {
 
     let e = refusal(|d| {
         let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(d.join("capture.json"), text.replace("\"samples_per_chirp\": 4", "\"samples_per_chirp\": 5")).unwrap();
+        fs::write(
+            d.join("capture.json"),
+            text.replace("\"samples_per_chirp\": 4", "\"samples_per_chirp\": 5"),
+        )
+        .unwrap();
     });
-    assert!(e.contains("samples.npy") && e.contains("samples_per_chirp = 5"), "{e}");
+    assert!(
+        e.contains("samples.npy") && e.contains("samples_per_chirp = 5"),
+        "{e}"
+    );
 
     let e = refusal(|d| {
         let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(d.join("capture.json"), text.replace("\"version\": 1", "\"version\": 2")).unwrap();
+        fs::write(
+            d.join("capture.json"),
+            text.replace("\"version\": 1", "\"version\": 2"),
+        )
+        .unwrap();
     });
     assert!(e.contains("capture.json") && e.contains("version"), "{e}");
 
     let e = refusal(|d| {
         let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(d.join("capture.json"), text.replace("\"range_offset_m\": 0.15", "\"range_offset_m\": \"far\"")).unwrap();
+        fs::write(
+            d.join("capture.json"),
+            text.replace("\"range_offset_m\": 0.15", "\"range_offset_m\": \"far\""),
+        )
+        .unwrap();
     });
     assert!(e.contains("range_offset_m"), "{e}");
 }

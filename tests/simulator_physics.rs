@@ -20,14 +20,17 @@ range_offset_m = 0.15
 
 fn scene(body: &str) -> Scene {
     let text = format!("{PLAN}\n{body}");
-    Scene::parse(&text, Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/inline.toml").as_path())
-        .unwrap_or_else(|e| panic!("{e}"))
+    Scene::parse(
+        &text,
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/inline.toml")
+            .as_path(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
 }
 
 fn single_antenna(x: f64, y: f64, z: f64) -> String {
-    format!(
-        "[aperture]\nwidth_m = 0.0\nheight_m = 0.0\nz_m = {z}\ncenter_m = [{x}, {y}]\n"
-    )
+    format!("[aperture]\nwidth_m = 0.0\nheight_m = 0.0\nz_m = {z}\ncenter_m = [{x}, {y}]\n")
 }
 
 fn wrap(phase: f64) -> f64 {
@@ -58,7 +61,9 @@ fn point_target_range_bin_and_phase_match_the_closed_form() {
     let d = 2.0 * (0.013f64.powi(2) + 0.021f64.powi(2) + 0.4f64.powi(2)).sqrt();
     let (mean_amp, worst_phase) = compare_to_tone(&s, h, d);
     let expected_amp = (0.01 / (4.0 * std::f64::consts::PI)).sqrt() / (d / 2.0).powi(2);
-    println!("point target: amplitude {mean_amp:.6} (closed form {expected_amp:.6}), worst phase error {worst_phase:.2e} rad");
+    println!(
+        "point target: amplitude {mean_amp:.6} (closed form {expected_amp:.6}), worst phase error {worst_phase:.2e} rad"
+    );
     assert!(worst_phase < 1e-3, "phase error {worst_phase} rad");
     assert!((mean_amp / expected_amp - 1.0).abs() < 1e-4);
 
@@ -68,11 +73,16 @@ fn point_target_range_bin_and_phase_match_the_closed_form() {
     let mut buf = vec![Complex32::new(0.0, 0.0); pad];
     buf[..t].copy_from_slice(h);
     FftPlanner::new().plan_fft_forward(pad).process(&mut buf);
-    let peak = (0..pad / 2).max_by(|&a, &b| buf[a].norm().total_cmp(&buf[b].norm())).unwrap();
+    let peak = (0..pad / 2)
+        .max_by(|&a, &b| buf[a].norm().total_cmp(&buf[b].norm()))
+        .unwrap();
     let bin_m = C / (s.plan.frequency_step_hz * t as f64); // round trip per unpadded bin
     let measured = peak as f64 / 16.0 * bin_m;
     let error_bins = (measured - (d + 0.15)) / bin_m;
-    println!("range peak at {measured:.4} m round trip, true {:.4} m: {error_bins:+.3} bins", d + 0.15);
+    println!(
+        "range peak at {measured:.4} m round trip, true {:.4} m: {error_bins:+.3} bins",
+        d + 0.15
+    );
     assert!(error_bins.abs() <= 0.5);
 }
 
@@ -90,7 +100,10 @@ fn plate_return_matches_image_theory() {
     let out = simulate(&s, true);
     let (amp, worst_phase) = compare_to_tone(&s, out.capture.chirp(0), 2.0 * r);
     let expected = 1.0 / (2.0 * r);
-    println!("plate: amplitude {amp:.5} vs 1/(2R) = {expected:.5} ({:+.2} %), worst phase error {worst_phase:.3} rad", (amp / expected - 1.0) * 100.0);
+    println!(
+        "plate: amplitude {amp:.5} vs 1/(2R) = {expected:.5} ({:+.2} %), worst phase error {worst_phase:.3} rad",
+        (amp / expected - 1.0) * 100.0
+    );
     assert!((amp / expected - 1.0).abs() < 0.02);
     assert!(worst_phase < 0.03);
 }
@@ -106,7 +119,10 @@ fn sphere_return_matches_geometric_optics() {
     let out = simulate(&s, true);
     let (amp, worst_phase) = compare_to_tone(&s, out.capture.chirp(0), 2.0 * r);
     let expected = a / (2.0 * r * (r + a));
-    println!("sphere: amplitude {amp:.5} vs a/(2R(R+a)) = {expected:.5} ({:+.2} %), worst phase error {worst_phase:.3} rad", (amp / expected - 1.0) * 100.0);
+    println!(
+        "sphere: amplitude {amp:.5} vs a/(2R(R+a)) = {expected:.5} ({:+.2} %), worst phase error {worst_phase:.3} rad",
+        (amp / expected - 1.0) * 100.0
+    );
     assert!((amp / expected - 1.0).abs() < 0.03);
     assert!(worst_phase < 0.05);
 }
@@ -159,7 +175,9 @@ fn flat_plate_is_bright_only_inside_its_specular_cone() {
         .filter(|(x, _)| x.abs() > 0.12)
         .map(|(_, v)| *v)
         .fold(f64::NEG_INFINITY, f64::max);
-    println!("flat plate: weakest inside the cone {inside:.1} dB, strongest outside {outside:.1} dB");
+    println!(
+        "flat plate: weakest inside the cone {inside:.1} dB, strongest outside {outside:.1} dB"
+    );
     assert!(inside > outside + 15.0);
     let c = bright_centroid(&xs, &p);
     println!("flat plate: bright-patch centroid x = {:.2} cm", c * 100.0);
@@ -171,14 +189,19 @@ fn tilted_plate_moves_the_bright_patch_by_h_tan_theta() {
     let (xs, p) = row_power_db(10.0);
     let c = bright_centroid(&xs, &p);
     let expected = 0.4 * 10f64.to_radians().tan();
-    println!("tilted plate: bright-patch centroid x = {:.2} cm, geometry predicts {:.2} cm", c * 100.0, expected * 100.0);
+    println!(
+        "tilted plate: bright-patch centroid x = {:.2} cm, geometry predicts {:.2} cm",
+        c * 100.0,
+        expected * 100.0
+    );
     assert!((c - expected).abs() < 0.005);
 }
 
 #[test]
 fn an_object_hidden_under_another_adds_nothing() {
     let aperture = "[aperture]\nwidth_m = 0.1\nheight_m = 0.1\nspacing_m = 0.01\nz_m = 0.4\n";
-    let plate = "[[object]]\nshape = \"plate\"\nsize_m = [0.4, 0.4]\nposition_m = [0.0, 0.0, 0.1]\n";
+    let plate =
+        "[[object]]\nshape = \"plate\"\nsize_m = [0.4, 0.4]\nposition_m = [0.0, 0.0, 0.1]\n";
     let sphere = "[[object]]\nshape = \"sphere\"\nradius_m = 0.02\nposition_m = [0.0, 0.0, 0.02]\n";
     let alone = simulate(&scene(&format!("{aperture}{plate}")), true);
     let both = simulate(&scene(&format!("{aperture}{plate}{sphere}")), true);
@@ -197,7 +220,8 @@ fn an_object_hidden_under_another_adds_nothing() {
 fn cardboard_attenuates_both_ways_and_reflects_weakly() {
     let antenna = single_antenna(0.0, 0.0, 0.4);
     let target = "[[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = 0.01\n";
-    let sheet = "[occluder]\nz_m = 0.2\nthickness_m = 0.004\nrefractive_index = 1.6\nloss_db = 1.5\n";
+    let sheet =
+        "[occluder]\nz_m = 0.2\nthickness_m = 0.004\nrefractive_index = 1.6\nloss_db = 1.5\n";
     let open = simulate(&scene(&format!("{antenna}{target}")), true);
     let covered = simulate(&scene(&format!("{antenna}{sheet}{target}")), true);
     // Separate the target (0.8 m round trip) from the sheet (0.396 m) in range.
@@ -212,13 +236,17 @@ fn cardboard_attenuates_both_ways_and_reflects_weakly() {
         }
         FftPlanner::new().plan_fft_forward(pad).process(&mut buf);
         let bin = ((round_trip_m + 0.15) * 5.859375e6 * t as f64 / C * 8.0).round() as usize;
-        (bin - 8..bin + 8).map(|k| buf[k].norm()).fold(0.0f32, f32::max)
+        (bin - 8..bin + 8)
+            .map(|k| buf[k].norm())
+            .fold(0.0f32, f32::max)
     };
     let ratio = range_peak(covered.capture.chirp(0), 0.8) / range_peak(open.capture.chirp(0), 0.8);
     let expected = 10f32.powf(-2.0 * 1.5 / 20.0);
     let sheet_echo = range_peak(covered.capture.chirp(0), 0.396);
     let sheet_in_open = range_peak(open.capture.chirp(0), 0.396);
-    println!("cardboard: target amplitude ratio {ratio:.4} (two crossings of 1.5 dB: {expected:.4}); sheet echo {sheet_echo:.3} vs {sheet_in_open:.3} without");
+    println!(
+        "cardboard: target amplitude ratio {ratio:.4} (two crossings of 1.5 dB: {expected:.4}); sheet echo {sheet_echo:.3} vs {sheet_in_open:.3} without"
+    );
     assert!((ratio / expected - 1.0).abs() < 0.01);
     assert!(sheet_echo > 10.0 * sheet_in_open);
 }

@@ -66,7 +66,10 @@ fn invalid(path: &Path, reason: impl Into<String>) -> CaptureDirError {
 /// Reads and validates a capture directory. Nothing partial is ever returned.
 pub fn read_capture_dir(dir: &Path) -> Result<Capture, CaptureDirError> {
     if !dir.is_dir() {
-        return Err(invalid(dir, "not a directory (expected a capture directory v1)"));
+        return Err(invalid(
+            dir,
+            "not a directory (expected a capture directory v1)",
+        ));
     }
     let json_path = dir.join("capture.json");
     let text = std::fs::read_to_string(&json_path).map_err(io_err(&json_path))?;
@@ -145,18 +148,14 @@ pub fn read_capture_dir(dir: &Path) -> Result<Capture, CaptureDirError> {
         description: meta.description,
         extra: map,
     };
-    capture
-        .validate()
-        .map_err(|e| invalid(&json_path, e.0))?;
+    capture.validate().map_err(|e| invalid(&json_path, e.0))?;
     Ok(capture)
 }
 
 /// Writes a capture directory, creating `dir` if needed. Files go through a temporary name and a
 /// rename; `capture.json` is written last.
 pub fn write_capture_dir(dir: &Path, capture: &Capture) -> Result<(), CaptureDirError> {
-    capture
-        .validate()
-        .map_err(|e| invalid(dir, e.0))?;
+    capture.validate().map_err(|e| invalid(dir, e.0))?;
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
     let n = capture.antennas();
     let t = capture.plan.samples_per_chirp;
@@ -262,9 +261,12 @@ impl Meta {
                 .ok_or_else(|| invalid(path, format!("`{key}` must be a finite number, found {v}")))
         };
         let count = |key: &str, v: Value| {
-            v.as_u64()
-                .filter(|c| *c > 0)
-                .ok_or_else(|| invalid(path, format!("`{key}` must be a positive integer, found {v}")))
+            v.as_u64().filter(|c| *c > 0).ok_or_else(|| {
+                invalid(
+                    path,
+                    format!("`{key}` must be a positive integer, found {v}"),
+                )
+            })
         };
         let start_frequency_hz = float("start_frequency_hz", take("start_frequency_hz")?)?;
         let frequency_step_hz = float("frequency_step_hz", take("frequency_step_hz")?)?;

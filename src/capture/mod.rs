@@ -73,7 +73,9 @@ impl FrequencyPlan {
         }
         let last = self.frequency_hz(self.samples_per_chirp - 1);
         if !(last.is_finite() && last > 0.0) {
-            return Err(format!("the last sample's frequency {last} Hz is not positive"));
+            return Err(format!(
+                "the last sample's frequency {last} Hz is not positive"
+            ));
         }
         Ok(())
     }
@@ -124,7 +126,9 @@ impl Capture {
         }
         let n = self.tx_m.len();
         if n == 0 {
-            return Err(InvalidCapture("a capture needs at least one antenna".into()));
+            return Err(InvalidCapture(
+                "a capture needs at least one antenna".into(),
+            ));
         }
         if self.rx_m.len() != n {
             return Err(InvalidCapture(format!(

@@ -38,7 +38,9 @@ pub enum NpyError {
     },
     #[error("shape {found:?} but expected {expected}")]
     WrongShape { found: Vec<usize>, expected: String },
-    #[error("Fortran-ordered arrays are not accepted; save a C-ordered array (np.ascontiguousarray)")]
+    #[error(
+        "Fortran-ordered arrays are not accepted; save a C-ordered array (np.ascontiguousarray)"
+    )]
     FortranOrder,
     #[error("{actual} data bytes but the header's shape needs {expected}")]
     DataLength { expected: usize, actual: usize },
@@ -115,7 +117,8 @@ pub fn header(descr: &str, shape: &[usize]) -> Vec<u8> {
                 .join(", ")
         ),
     };
-    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}, }}");
+    let mut dict =
+        format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}, }}");
     let unpadded = MAGIC.len() + 2 + 2 + dict.len() + 1;
     let pad = (ALIGN - unpadded % ALIGN) % ALIGN;
     dict.extend(std::iter::repeat_n(' ', pad));
@@ -250,7 +253,8 @@ fn parse_header_dict(text: &str) -> Result<(String, bool, Vec<usize>), NpyError>
             .trim_start();
         let after_value = match key.as_str() {
             "descr" => {
-                let (v, r) = take_string(after_colon).ok_or_else(|| bad("descr is not a string"))?;
+                let (v, r) =
+                    take_string(after_colon).ok_or_else(|| bad("descr is not a string"))?;
                 descr = Some(v);
                 r
             }
@@ -310,7 +314,11 @@ mod tests {
         assert!(text.starts_with("{'descr': '<f8', 'fortran_order': False, 'shape': (3, 3), }"));
         assert!(text.ends_with(" \n"));
         let one_d = header("<c8", &[5]);
-        assert!(std::str::from_utf8(&one_d[10..]).unwrap().contains("'shape': (5,), }"));
+        assert!(
+            std::str::from_utf8(&one_d[10..])
+                .unwrap()
+                .contains("'shape': (5,), }")
+        );
     }
 
     /// Bytes that numpy 1.26 wrote for `np.save(f, np.arange(6, dtype='<f8').reshape(2, 3))`.
@@ -318,7 +326,7 @@ mod tests {
     fn reads_a_numpy_written_file_and_writes_it_back_identically() {
         let mut file = b"\x93NUMPY\x01\x00v\x00".to_vec();
         let mut dict = "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }".to_string();
-        while (10 + dict.len() + 1) % 64 != 0 {
+        while !(10 + dict.len() + 1).is_multiple_of(64) {
             dict.push(' ');
         }
         dict.push('\n');
@@ -336,10 +344,16 @@ mod tests {
     fn refuses_wrong_dtype_shape_order_and_truncation() {
         let mut f4 = header("<f4", &[2, 3]);
         f4.extend_from_slice(&[0u8; 24]);
-        assert!(matches!(decode_f64_rows(&f4), Err(NpyError::WrongDtype { .. })));
+        assert!(matches!(
+            decode_f64_rows(&f4),
+            Err(NpyError::WrongDtype { .. })
+        ));
         let mut shape = header("<f8", &[2, 2]);
         shape.extend_from_slice(&[0u8; 32]);
-        assert!(matches!(decode_f64_rows(&shape), Err(NpyError::WrongShape { .. })));
+        assert!(matches!(
+            decode_f64_rows(&shape),
+            Err(NpyError::WrongShape { .. })
+        ));
         let mut fortran = header("<f8", &[1, 3]);
         let at = fortran.windows(5).position(|w| w == b"False").unwrap();
         fortran[at..at + 5].copy_from_slice(b"True ");
@@ -347,9 +361,21 @@ mod tests {
         assert_eq!(decode_f64_rows(&fortran), Err(NpyError::FortranOrder));
         let full = encode_c64(&[Complex32::new(1.0, 2.0); 6], 2, 3);
         let cut = &full[..full.len() - 5];
-        assert!(matches!(decode_c64(cut), Err(NpyError::DataLength { expected: 48, actual: 43 })));
-        assert!(matches!(parse(&full[..20]), Err(NpyError::Truncated { .. })));
-        assert_eq!(parse(b"PK\x03\x04 not numpy at all"), Err(NpyError::BadMagic));
+        assert!(matches!(
+            decode_c64(cut),
+            Err(NpyError::DataLength {
+                expected: 48,
+                actual: 43
+            })
+        ));
+        assert!(matches!(
+            parse(&full[..20]),
+            Err(NpyError::Truncated { .. })
+        ));
+        assert_eq!(
+            parse(b"PK\x03\x04 not numpy at all"),
+            Err(NpyError::BadMagic)
+        );
     }
 
     #[test]

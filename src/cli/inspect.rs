@@ -21,7 +21,12 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
         .collect();
     let (lo, hi) = centres.iter().fold(
         ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-        |(lo, hi), p| ([0, 1, 2].map(|k| lo[k].min(p[k])), [0, 1, 2].map(|k| hi[k].max(p[k]))),
+        |(lo, hi), p| {
+            (
+                [0, 1, 2].map(|k| lo[k].min(p[k])),
+                [0, 1, 2].map(|k| hi[k].max(p[k])),
+            )
+        },
     );
     let power_db: Vec<f32> = (0..n)
         .map(|i| {
@@ -49,10 +54,14 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
         }
     }
     let half = pad / 2;
-    let (peak_bin, _) = profile[..half]
-        .iter()
-        .enumerate()
-        .fold((0, f32::NEG_INFINITY), |b, (k, &v)| if v > b.1 { (k, v) } else { b });
+    let (peak_bin, _) =
+        profile[..half]
+            .iter()
+            .enumerate()
+            .fold(
+                (0, f32::NEG_INFINITY),
+                |b, (k, &v)| if v > b.1 { (k, v) } else { b },
+            );
     // With h ∝ exp(+j2π·f_t·d/c) the FFT peaks at bin d·step·T/c (one-way range d/2).
     let round_trip_m = peak_bin as f64 / pad as f64 * mmnormd::SPEED_OF_LIGHT_M_PER_S
         / c.plan.frequency_step_hz.abs();
@@ -80,8 +89,14 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
     let truth = truth_files(dir);
     println!(
         "  truth          mesh {}, top view {}",
-        truth.mesh.as_ref().map_or("none".into(), |p| p.display().to_string()),
-        truth.top_points.as_ref().map_or("none".into(), |p| p.display().to_string())
+        truth
+            .mesh
+            .as_ref()
+            .map_or("none".into(), |p| p.display().to_string()),
+        truth
+            .top_points
+            .as_ref()
+            .map_or("none".into(), |p| p.display().to_string())
     );
     if let Some(path) = png {
         let image = aperture_image(&centres, &power_db, lo, hi);
@@ -97,7 +112,12 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
 }
 
 /// Places each antenna's power in a cell of an image spanning the aperture (max per cell).
-fn aperture_image(centres: &[[f64; 3]], power_db: &[f32], lo: [f64; 3], hi: [f64; 3]) -> ScalarImage {
+fn aperture_image(
+    centres: &[[f64; 3]],
+    power_db: &[f32],
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> ScalarImage {
     let (wx, wy) = ((hi[0] - lo[0]).max(1e-9), (hi[1] - lo[1]).max(1e-9));
     let cell = wx.max(wy) / MAX_SIDE as f64;
     let width = ((wx / cell).floor() as usize + 1).min(MAX_SIDE + 1);

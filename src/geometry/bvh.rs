@@ -71,9 +71,9 @@ impl Aabb {
         hi: [f32::NEG_INFINITY; 3],
     };
     fn grow(&mut self, p: [f32; 3]) {
-        for k in 0..3 {
-            self.lo[k] = self.lo[k].min(p[k]);
-            self.hi[k] = self.hi[k].max(p[k]);
+        for ((lo, hi), v) in self.lo.iter_mut().zip(&mut self.hi).zip(p) {
+            *lo = lo.min(v);
+            *hi = hi.max(v);
         }
     }
     fn merge(&mut self, o: &Aabb) {
@@ -158,7 +158,13 @@ impl Bvh {
             return None;
         }
         // A zero component would give 0·∞ = NaN in the slab test; a tiny one keeps it finite.
-        let inv = d.map(|c| 1.0 / if c.abs() < 1e-30 { 1e-30f32.copysign(c) } else { c });
+        let inv = d.map(|c| {
+            1.0 / if c.abs() < 1e-30 {
+                1e-30f32.copysign(c)
+            } else {
+                c
+            }
+        });
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
         let mut stack = [0u32; STACK];
@@ -258,9 +264,8 @@ fn build_node(nodes: &mut Vec<Node>, index: usize, prims: &mut [Prim], start: us
         nodes[index] = leaf;
         return;
     }
-    let bin_of = |c: f32| {
-        (((c - cbounds.lo[axis]) / extent[axis] * BINS as f32) as usize).min(BINS - 1)
-    };
+    let bin_of =
+        |c: f32| (((c - cbounds.lo[axis]) / extent[axis] * BINS as f32) as usize).min(BINS - 1);
     let mut bin_bounds = [Aabb::EMPTY; BINS];
     let mut bin_count = [0usize; BINS];
     for p in &prims[start..end] {
@@ -329,7 +334,9 @@ mod tests {
     fn rays_hit_a_sphere_where_geometry_says() {
         let mesh = sphere_mesh(0.1, 0.005);
         let bvh = Bvh::build(&mesh);
-        let hit = bvh.closest([0.001, 0.0, 1.0], [0.0, 0.0, -1.0], 10.0).unwrap();
+        let hit = bvh
+            .closest([0.001, 0.0, 1.0], [0.0, 0.0, -1.0], 10.0)
+            .unwrap();
         assert!((hit.t - 0.9).abs() < 1e-4, "{hit:?}");
         assert!(bvh.occluded([0.001, 0.0, 1.0], [0.0, 0.0, -1.0], 10.0));
         assert!(!bvh.occluded([0.001, 0.0, 1.0], [0.0, 0.0, -1.0], 0.85));
@@ -339,14 +346,16 @@ mod tests {
     #[test]
     fn brute_force_agrees_on_random_rays() {
         let mut mesh = box_mesh([0.1, 0.2, 0.05], 0.01);
-        mesh.append(&sphere_mesh(0.04, 0.004).transformed(&crate::geometry::pose_from(
-            [0.05, 0.0, 0.08],
-            [0.0; 3],
-        )));
+        mesh.append(
+            &sphere_mesh(0.04, 0.004)
+                .transformed(&crate::geometry::pose_from([0.05, 0.0, 0.08], [0.0; 3])),
+        );
         let bvh = Bvh::build(&mesh);
         let mut state = 12345u64;
         let mut rnd = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
         };
         for _ in 0..500 {
@@ -356,7 +365,11 @@ mod tests {
             for (i, t) in mesh.triangles.iter().enumerate() {
                 let _ = i;
                 let [a, b, c] = t.map(|k| mesh.vertices_m[k as usize].map(|x| x as f32));
-                let tri = Tri { v0: a, e1: sub(b, a), e2: sub(c, a) };
+                let tri = Tri {
+                    v0: a,
+                    e1: sub(b, a),
+                    e2: sub(c, a),
+                };
                 if let Some(th) = intersect(&tri, o, d, brute.unwrap_or(100.0)) {
                     brute = Some(th);
                 }

@@ -72,7 +72,6 @@ fn load_obj(path: &Path) -> Result<TriMesh, String> {
         single_index: false,
         ignore_points: true,
         ignore_lines: true,
-        ..Default::default()
     };
     // The second element carries the materials; a missing .mtl only makes it an Err.
     let (models, _materials) =

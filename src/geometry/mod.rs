@@ -156,10 +156,17 @@ impl TriMesh {
             .iter()
             .position(|v| v.iter().any(|c| !c.is_finite()))
         {
-            return Err(format!("vertex {i} is not finite: {:?}", self.vertices_m[i]));
+            return Err(format!(
+                "vertex {i} is not finite: {:?}",
+                self.vertices_m[i]
+            ));
         }
         let n = self.vertices_m.len() as u32;
-        if let Some(i) = self.triangles.iter().position(|t| t.iter().any(|&k| k >= n)) {
+        if let Some(i) = self
+            .triangles
+            .iter()
+            .position(|t| t.iter().any(|&k| k >= n))
+        {
             return Err(format!(
                 "triangle {i} refers to vertex {:?}, but there are {n} vertices",
                 self.triangles[i]

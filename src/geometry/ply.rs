@@ -110,7 +110,9 @@ pub fn parse(bytes: &[u8]) -> Result<PlyData, String> {
     }
     let n = out.vertices_m.len() as u32;
     if let Some(t) = out.triangles.iter().find(|t| t.iter().any(|&k| k >= n)) {
-        return Err(format!("face {t:?} refers to a vertex beyond the {n} vertices"));
+        return Err(format!(
+            "face {t:?} refers to a vertex beyond the {n} vertices"
+        ));
     }
     Ok(out)
 }
@@ -169,7 +171,9 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<Element>, usize), String>
                     .last_mut()
                     .ok_or("a property comes before any element")?;
                 let s = Scalar::parse(ty).ok_or(format!("unknown type `{ty}`"))?;
-                element.properties.push(Property::Scalar(name.to_string(), s));
+                element
+                    .properties
+                    .push(Property::Scalar(name.to_string(), s));
             }
             _ => return Err(format!("unrecognised header line `{line}`")),
         }
@@ -187,8 +191,12 @@ struct AsciiReader<'a> {
 
 impl ValueReader for AsciiReader<'_> {
     fn next(&mut self, _ty: Scalar) -> Result<f64, String> {
-        let w = self.words.next().ok_or("the body ends early (truncated file)")?;
-        w.parse::<f64>().map_err(|_| format!("`{w}` is not a number"))
+        let w = self
+            .words
+            .next()
+            .ok_or("the body ends early (truncated file)")?;
+        w.parse::<f64>()
+            .map_err(|_| format!("`{w}` is not a number"))
     }
 }
 
@@ -349,7 +357,10 @@ impl Column<'_> {
 /// Panics if the columns differ in length (a programming error, not an input error).
 pub fn encode(columns: &[Column<'_>], triangles: &[[u32; 3]]) -> Vec<u8> {
     let n = columns.first().map_or(0, Column::len);
-    assert!(columns.iter().all(|c| c.len() == n), "PLY columns differ in length");
+    assert!(
+        columns.iter().all(|c| c.len() == n),
+        "PLY columns differ in length"
+    );
     let mut out = Vec::new();
     let mut header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment written by mmnormd {}\nelement vertex {n}\n",

@@ -59,12 +59,54 @@ pub fn box_mesh(size_m: [f64; 3], max_edge_m: f64) -> TriMesh {
     );
     let mut m = TriMesh::default();
     // Each face: origin, u, v with u×v pointing outward.
-    add_grid(&mut m, [-hx, -hy, hz], [sx, 0.0, 0.0], [0.0, sy, 0.0], nx, ny);
-    add_grid(&mut m, [-hx, hy, -hz], [sx, 0.0, 0.0], [0.0, -sy, 0.0], nx, ny);
-    add_grid(&mut m, [hx, -hy, -hz], [0.0, sy, 0.0], [0.0, 0.0, sz], ny, nz);
-    add_grid(&mut m, [-hx, hy, -hz], [0.0, -sy, 0.0], [0.0, 0.0, sz], ny, nz);
-    add_grid(&mut m, [hx, hy, -hz], [-sx, 0.0, 0.0], [0.0, 0.0, sz], nx, nz);
-    add_grid(&mut m, [-hx, -hy, -hz], [sx, 0.0, 0.0], [0.0, 0.0, sz], nx, nz);
+    add_grid(
+        &mut m,
+        [-hx, -hy, hz],
+        [sx, 0.0, 0.0],
+        [0.0, sy, 0.0],
+        nx,
+        ny,
+    );
+    add_grid(
+        &mut m,
+        [-hx, hy, -hz],
+        [sx, 0.0, 0.0],
+        [0.0, -sy, 0.0],
+        nx,
+        ny,
+    );
+    add_grid(
+        &mut m,
+        [hx, -hy, -hz],
+        [0.0, sy, 0.0],
+        [0.0, 0.0, sz],
+        ny,
+        nz,
+    );
+    add_grid(
+        &mut m,
+        [-hx, hy, -hz],
+        [0.0, -sy, 0.0],
+        [0.0, 0.0, sz],
+        ny,
+        nz,
+    );
+    add_grid(
+        &mut m,
+        [hx, hy, -hz],
+        [-sx, 0.0, 0.0],
+        [0.0, 0.0, sz],
+        nx,
+        nz,
+    );
+    add_grid(
+        &mut m,
+        [-hx, -hy, -hz],
+        [sx, 0.0, 0.0],
+        [0.0, 0.0, sz],
+        nx,
+        nz,
+    );
     m.welded(1e-12)
 }
 
@@ -171,7 +213,11 @@ mod tests {
     #[test]
     fn primitives_are_closed_and_outward() {
         closed_volume_close(&box_mesh([0.1, 0.2, 0.05], 0.01), 0.001, 1e-9);
-        closed_volume_close(&sphere_mesh(0.05, 0.002), 4.0 / 3.0 * PI * 0.05f64.powi(3), 2e-3);
+        closed_volume_close(
+            &sphere_mesh(0.05, 0.002),
+            4.0 / 3.0 * PI * 0.05f64.powi(3),
+            2e-3,
+        );
         closed_volume_close(&cylinder_mesh(0.03, 0.1, 0.002), PI * 0.0009 * 0.1, 2e-3);
         let plate = plate_mesh([0.1, 0.05], 0.01);
         assert!((plate.area_m2() - 0.005).abs() < 1e-12);

@@ -401,13 +401,11 @@ impl Partial {
                 a.float(6, "adcStartTimeVar")?;
                 a.int_in(7, "txEnable", 1, 7)?;
                 if end < start {
-                    return Err(a.fail(format!("chirpEndIdx {end} is before chirpStartIdx {start}")));
+                    return Err(
+                        a.fail(format!("chirpEndIdx {end} is before chirpStartIdx {start}"))
+                    );
                 }
-                if !self
-                    .profile
-                    .as_ref()
-                    .is_some_and(|_| profile == 0)
-                {
+                if self.profile.is_none() || profile != 0 {
                     return Err(a.fail(format!(
                         "profileId {profile} is not defined by an earlier profileCfg"
                     )));
@@ -492,7 +490,12 @@ impl Partial {
         }
         time_code(8, "txStartTime")?;
         let samples = a.int_in(9, "numAdcSamples", 1, 1024)? as u32;
-        let rate_ksps = a.int_in(10, "digOutSampleRate", 1, MAX_COMPLEX_SAMPLE_RATE_KSPS as i64)?;
+        let rate_ksps = a.int_in(
+            10,
+            "digOutSampleRate",
+            1,
+            MAX_COMPLEX_SAMPLE_RATE_KSPS as i64,
+        )?;
         a.int_in(11, "hpfCornerFreq1", 0, 3)?;
         a.int_in(12, "hpfCornerFreq2", 0, 3)?;
         let gain = a.int_in(13, "rxGain", 0, 52)?;
@@ -519,7 +522,9 @@ impl Partial {
         let (rx_mask, tx_mask) = self.channel.ok_or(ProfileError::Missing {
             command: "channelCfg",
         })?;
-        let adc_bits = self.adc.ok_or(ProfileError::Missing { command: "adcCfg" })?;
+        let adc_bits = self
+            .adc
+            .ok_or(ProfileError::Missing { command: "adcCfg" })?;
         let p = self.profile.ok_or(ProfileError::Missing {
             command: "profileCfg",
         })?;
@@ -593,8 +598,7 @@ impl ProfileFields {
             )));
         }
         let adc_start_s = self.adc_start_time_code as f64 * 10e-9;
-        let window_s =
-            f64::from(self.samples_per_chirp) / (f64::from(self.sample_rate_ksps) * 1e3);
+        let window_s = f64::from(self.samples_per_chirp) / (f64::from(self.sample_rate_ksps) * 1e3);
         if adc_start_s + window_s > ramp_end_s {
             return Err(a.fail(format!(
                 "the ADC window ends at {:.3} µs ({:.3} µs start + {} samples at {} ksps), after the ramp ends at {:.3} µs",
@@ -726,7 +730,9 @@ mod tests {
             .join("\n");
         assert!(matches!(
             RadarProfile::from_cfg_str(&no_frame),
-            Err(ProfileError::Missing { command: "frameCfg" })
+            Err(ProfileError::Missing {
+                command: "frameCfg"
+            })
         ));
         let text = SHIPPED.replace("frameCfg 0 0 1", "frameCfg 0 1 1");
         let (_, reason) = refusal(&text);

@@ -80,7 +80,10 @@ mod tests {
         }
         let mean = sum / n as f64;
         let var = sq / n as f64 - mean * mean;
-        assert!(mean.abs() < 0.02 && (var - 1.0).abs() < 0.02, "{mean} {var}");
+        assert!(
+            mean.abs() < 0.02 && (var - 1.0).abs() < 0.02,
+            "{mean} {var}"
+        );
         assert_ne!(
             Rng::for_stream(1, 2, 3).next_u64(),
             Rng::for_stream(1, 2, 4).next_u64()

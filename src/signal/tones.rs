@@ -145,7 +145,10 @@ mod tests {
             samples_per_chirp: 515,
         };
         let mut acc = ToneAccumulator::new(&plan, 0.15);
-        let reflections = [(Complex32::new(0.3, -0.2), 0.8123456), (Complex32::new(1.0, 0.0), 1.37)];
+        let reflections = [
+            (Complex32::new(0.3, -0.2), 0.8123456),
+            (Complex32::new(1.0, 0.0), 1.37),
+        ];
         for (a, d) in reflections {
             acc.add(a, d);
         }
@@ -161,7 +164,8 @@ mod tests {
                 want.0 += f64::from(a.re) * c - f64::from(a.im) * s;
                 want.1 += f64::from(a.re) * s + f64::from(a.im) * c;
             }
-            let err = ((f64::from(o.re) - want.0).powi(2) + (f64::from(o.im) - want.1).powi(2)).sqrt();
+            let err =
+                ((f64::from(o.re) - want.0).powi(2) + (f64::from(o.im) - want.1).powi(2)).sqrt();
             worst = worst.max(err);
         }
         println!("worst error {worst:.2e}");

@@ -102,7 +102,11 @@ impl Pattern {
         if down <= 0.0 {
             return 0.0;
         }
-        let (a, e) = if self.along_x { (u[0], u[1]) } else { (u[1], u[0]) };
+        let (a, e) = if self.along_x {
+            (u[0], u[1])
+        } else {
+            (u[1], u[0])
+        };
         let cos_az = down / (a * a + down * down).sqrt();
         let cos_el = down / (e * e + down * down).sqrt();
         cos_az.powf(q_az) * cos_el.powf(q_el)

@@ -308,10 +308,7 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
         let m = object.material;
         let id = index.min(usize::from(NO_OBJECT) - 1) as u16;
         match &object.geometry {
-            ObjectGeometry::Point {
-                position_m,
-                rcs_m2,
-            } => {
+            ObjectGeometry::Point { position_m, rcs_m2 } => {
                 let amp = (rcs_m2 / (4.0 * std::f64::consts::PI)).sqrt() as f32;
                 s.points.push((f32v(*position_m), amp));
                 s.bvhs.push(Bvh::build(&TriMesh::default()));
@@ -379,14 +376,23 @@ impl Ctx<'_> {
     /// object's geometry, skipping `own` when `skip_own` (a convex object seen from the front).
     #[inline]
     fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32, own: u16, skip_own: bool) -> bool {
-        self.s.bvhs.iter().enumerate().all(|(k, bvh)| {
-            (skip_own && k == usize::from(own)) || !bvh.occluded(origin, u, d)
-        })
+        self.s
+            .bvhs
+            .iter()
+            .enumerate()
+            .all(|(k, bvh)| (skip_own && k == usize::from(own)) || !bvh.occluded(origin, u, d))
     }
 
     /// Pattern and sheet factors and the sheet's extra path for both legs.
     #[inline]
-    fn path_factors(&self, p: [f32; 3], tx: [f32; 3], rx: [f32; 3], ut: [f32; 3], ur: [f32; 3]) -> (f32, f32) {
+    fn path_factors(
+        &self,
+        p: [f32; 3],
+        tx: [f32; 3],
+        rx: [f32; 3],
+        ut: [f32; 3],
+        ur: [f32; 3],
+    ) -> (f32, f32) {
         let mut amp = 1.0;
         if !self.pattern.is_isotropic() {
             amp *= self.pattern.gain(scale(ut, -1.0)) * self.pattern.gain(scale(ur, -1.0));
@@ -439,8 +445,11 @@ impl Ctx<'_> {
         let s = self.s;
         let mut count = 0u64;
 
-        for ((c, &(cos_lim, sin_lim)), &own) in
-            s.clusters.iter().zip(&s.cluster_limit).zip(&s.cluster_object)
+        for ((c, &(cos_lim, sin_lim)), &own) in s
+            .clusters
+            .iter()
+            .zip(&s.cluster_limit)
+            .zip(&s.cluster_object)
         {
             let (v, dist) = towards(c.centre, mid);
             // Widen the cone by the cluster's angular radius and the TX–RX parallax.
@@ -460,7 +469,8 @@ impl Ctx<'_> {
                 }
                 let h = add(ut, ur);
                 let theta = (dot(n, h) / dot(h, h).sqrt()).min(1.0).acos();
-                let zone = fresnel_zone_rad(self.half_lambda0_m, c.curvature_per_m, 0.5 * (dt + dr));
+                let zone =
+                    fresnel_zone_rad(self.half_lambda0_m, c.curvature_per_m, 0.5 * (dt + dr));
                 let full = self.full_zones * zone;
                 let cutoff = (self.cutoff_zones * zone).min(MAX_WINDOW_RAD);
                 if theta >= cutoff {
@@ -492,7 +502,9 @@ impl Ctx<'_> {
             }
             // Specular direction of the incident ray, then the lobe around it.
             let specular = sub(scale(n, 2.0 * ct), ut);
-            let lobe = (0.5 * (1.0 + dot(specular, ur))).max(0.0).powf(s.diff_half_alpha[i]);
+            let lobe = (0.5 * (1.0 + dot(specular, ur)))
+                .max(0.0)
+                .powf(s.diff_half_alpha[i]);
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = s.diff_weight[i] * ct.sqrt() * lobe * f / (dt * dr);
             let face = s.diff.face_normal[i];
@@ -509,14 +521,22 @@ impl Ctx<'_> {
             let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
             let outside = |u: [f32; 3]| {
                 let (a, b) = (dot(e.n1, u), dot(e.n2, u));
-                if e.convex { a > 0.0 || b > 0.0 } else { a > 0.0 && b > 0.0 }
+                if e.convex {
+                    a > 0.0 || b > 0.0
+                } else {
+                    a > 0.0 && b > 0.0
+                }
             };
             let rim = e.n1 == e.n2;
-            if !rim && !(outside(ut) && outside(ur)) {
+            if !(rim || (outside(ut) && outside(ur))) {
                 continue;
             }
             let offset_dir = if rim {
-                if dot(e.n1, ut) >= 0.0 { e.n1 } else { scale(e.n1, -1.0) }
+                if dot(e.n1, ut) >= 0.0 {
+                    e.n1
+                } else {
+                    scale(e.n1, -1.0)
+                }
             } else {
                 let m = add(e.n1, e.n2);
                 scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
@@ -524,7 +544,13 @@ impl Ctx<'_> {
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = weight * f / (dt * dr);
             // The face the legs leave from: the one that sees the TX (either, for a rim).
-            let face = if dot(e.n1, ut) > 0.0 { e.n1 } else if rim { scale(e.n1, -1.0) } else { e.n2 };
+            let face = if dot(e.n1, ut) > 0.0 {
+                e.n1
+            } else if rim {
+                scale(e.n1, -1.0)
+            } else {
+                e.n2
+            };
             if amp == 0.0 || !self.visible(p, offset_dir, (ut, dt), (ur, dr), same, own, face) {
                 continue;
             }
@@ -539,7 +565,10 @@ impl Ctx<'_> {
             if !self.visible(p, [0.0; 3], (ut, dt), (ur, dr), same, NO_OBJECT, [0.0; 3]) {
                 continue;
             }
-            other.add(Complex32::new(a * f / (dt * dr), 0.0), f64::from(dt + dr + extra));
+            other.add(
+                Complex32::new(a * f / (dt * dr), 0.0),
+                f64::from(dt + dr + extra),
+            );
             count += 1;
         }
         count

@@ -79,8 +79,9 @@ impl Occluder {
         let a2 = 10f64.powf(-self.loss_db / (10.0 * cos_t));
         let factors = (0..plan.samples_per_chirp)
             .map(|t| {
-                let delta = std::f64::consts::TAU * plan.frequency_hz(t) * n * self.thickness_m * cos_t
-                    / SPEED_OF_LIGHT_M_PER_S;
+                let delta =
+                    std::f64::consts::TAU * plan.frequency_hz(t) * n * self.thickness_m * cos_t
+                        / SPEED_OF_LIGHT_M_PER_S;
                 let (s2, c2) = (2.0 * delta).sin_cos();
                 let e = (a2 * c2, a2 * s2);
                 let num = (r * (1.0 - e.0), -r * e.1);
@@ -129,11 +130,18 @@ mod tests {
             frequency_step_hz: 1e6,
             samples_per_chirp: 1,
         };
-        let (g, len) = o.reflection(&plan, [0.0, 0.0, 0.4], [0.0, 0.0, 0.4]).unwrap();
+        let (g, len) = o
+            .reflection(&plan, [0.0, 0.0, 0.4], [0.0, 0.0, 0.4])
+            .unwrap();
         assert!((len - 2.0 * (0.4 - 0.202)).abs() < 1e-12);
         let r = (1.0 - 1.6) / 2.6f64;
         let delta = std::f64::consts::TAU * 77e9 * 1.6 * 0.004 / SPEED_OF_LIGHT_M_PER_S;
-        let mag = (2.0 * r.abs() * delta.sin().abs()) / (1.0 - 2.0 * r * r * (2.0 * delta).cos() + r.powi(4)).sqrt();
-        assert!((f64::from(g[0].norm()) - mag).abs() < 1e-5, "{} vs {mag}", g[0].norm());
+        let mag = (2.0 * r.abs() * delta.sin().abs())
+            / (1.0 - 2.0 * r * r * (2.0 * delta).cos() + r.powi(4)).sqrt();
+        assert!(
+            (f64::from(g[0].norm()) - mag).abs() < 1e-5,
+            "{} vs {mag}",
+            g[0].norm()
+        );
     }
 }

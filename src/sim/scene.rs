@@ -209,7 +209,10 @@ impl Default for Material {
 pub enum ObjectGeometry {
     Surface(TriMesh),
     /// An ideal point scatterer (a calibration target) of the given RCS.
-    Point { position_m: [f64; 3], rcs_m2: f64 },
+    Point {
+        position_m: [f64; 3],
+        rcs_m2: f64,
+    },
 }
 
 /// One object of the scene.
@@ -496,7 +499,7 @@ fn resolve_radar(
                 samples_per_chirp: r.samples_per_chirp.unwrap_or(0),
             };
             plan.validate()
-                .map_err(|reason| c.fail("radar", &plan, &reason))?;
+                .map_err(|reason| c.fail("radar", plan, &reason))?;
             Ok((plan, None))
         }
         _ => Err(c.fail(
@@ -580,7 +583,10 @@ fn resolve_object(
     c.vec(&field("rotation_deg"), &o.rotation_deg)?;
     let d = Material::default();
     let material = Material {
-        reflectivity: c.non_negative(&field("reflectivity"), o.reflectivity.unwrap_or(d.reflectivity))?,
+        reflectivity: c.non_negative(
+            &field("reflectivity"),
+            o.reflectivity.unwrap_or(d.reflectivity),
+        )?,
         diffuse: c.non_negative(&field("diffuse"), o.diffuse.unwrap_or(d.diffuse))?,
         diffuse_exponent: c.non_negative(
             &field("diffuse_exponent"),
@@ -614,7 +620,11 @@ fn resolve_object(
     ];
     for (key, present) in given {
         if present && !allowed.contains(&key) {
-            return Err(c.fail(&field(key), "…", &format!("does not apply to a {}", o.shape)));
+            return Err(c.fail(
+                &field(key),
+                "…",
+                &format!("does not apply to a {}", o.shape),
+            ));
         }
     }
     let required = |key: &str, v: Option<f64>| -> Result<f64, SceneError> {
@@ -624,10 +634,13 @@ fn resolve_object(
         }
     };
     let sizes = |n: usize| -> Result<Vec<f64>, SceneError> {
-        let v = o
-            .size_m
-            .clone()
-            .ok_or_else(|| c.fail(&field("size_m"), "missing", &format!("a {} needs it", o.shape)))?;
+        let v = o.size_m.clone().ok_or_else(|| {
+            c.fail(
+                &field("size_m"),
+                "missing",
+                &format!("a {} needs it", o.shape),
+            )
+        })?;
         if v.len() != n {
             return Err(c.fail(&field("size_m"), &v, &format!("needs {n} values")));
         }
@@ -683,10 +696,7 @@ fn resolve_object(
         }
     };
     Ok(SceneObject {
-        name: o
-            .name
-            .clone()
-            .unwrap_or_else(|| format!("{}{i}", o.shape)),
+        name: o.name.clone().unwrap_or_else(|| format!("{}{i}", o.shape)),
         geometry: ObjectGeometry::Surface(local.transformed(&pose)),
         material,
     })

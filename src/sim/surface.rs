@@ -209,7 +209,12 @@ pub fn sample_surface(
     (samples, clusters)
 }
 
-fn interpolated_normal(corner_n: &[Vector3<f64>; 3], bu: f64, bv: f64, face: Vector3<f64>) -> Vector3<f64> {
+fn interpolated_normal(
+    corner_n: &[Vector3<f64>; 3],
+    bu: f64,
+    bv: f64,
+    face: Vector3<f64>,
+) -> Vector3<f64> {
     (corner_n[0] * (1.0 - bu - bv) + corner_n[1] * bu + corner_n[2] * bv)
         .try_normalize(0.0)
         .unwrap_or(face)
@@ -275,12 +280,18 @@ pub fn sample_edges(mesh: &TriMesh, crease_deg: f64, spacing_m: f64) -> Vec<Edge
     for (f, t) in mesh.triangles.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
-            edges.entry((a.min(b), a.max(b))).or_default().push(f as u32);
+            edges
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push(f as u32);
         }
     }
     let face_normal = |f: u32| {
         let [a, b, c] = mesh.corners(f as usize);
-        (b - a).cross(&(c - a)).try_normalize(0.0).unwrap_or_else(Vector3::z)
+        (b - a)
+            .cross(&(c - a))
+            .try_normalize(0.0)
+            .unwrap_or_else(Vector3::z)
     };
     let face_centre = |f: u32| {
         let [a, b, c] = mesh.corners(f as usize);
@@ -371,14 +382,18 @@ mod tests {
         let total: f64 = s.area_m2.iter().map(|&a| f64::from(a)).sum();
         assert!((total - sphere.area_m2()).abs() / total < 1e-5);
         let expected = sphere.area_m2() / 0.004f64.powi(2);
-        assert!((s.len() as f64 - expected).abs() <= 1.0, "{} vs {expected}", s.len());
+        assert!(
+            (s.len() as f64 - expected).abs() <= 1.0,
+            "{} vs {expected}",
+            s.len()
+        );
         assert!(is_convex(&sphere));
         assert!(is_convex(&plate_mesh([0.1, 0.1], 0.01)));
         let mut two = box_mesh([0.02, 0.02, 0.02], 0.01);
-        two.append(&box_mesh([0.02, 0.02, 0.02], 0.01).transformed(&crate::geometry::pose_from(
-            [0.05, 0.0, 0.0],
-            [0.0; 3],
-        )));
+        two.append(
+            &box_mesh([0.02, 0.02, 0.02], 0.01)
+                .transformed(&crate::geometry::pose_from([0.05, 0.0, 0.0], [0.0; 3])),
+        );
         assert!(!is_convex(&two));
     }
 
@@ -404,7 +419,10 @@ mod tests {
         assert!((total - 12.0 * 0.02).abs() < 1e-5, "{total}");
         assert!(edges.iter().all(|e| e.convex));
         let plate = plate_mesh([0.02, 0.01], 0.005);
-        let rim: f32 = sample_edges(&plate, 30.0, 0.001).iter().map(|e| e.length_m).sum();
+        let rim: f32 = sample_edges(&plate, 30.0, 0.001)
+            .iter()
+            .map(|e| e.length_m)
+            .sum();
         assert!((rim - 0.06).abs() < 1e-5, "{rim}");
     }
 }

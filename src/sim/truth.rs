@@ -28,8 +28,12 @@ pub fn top_surface(mesh: &TriMesh, grid_m: f64) -> Vec<[f64; 3]> {
             (kx0..kx1).filter_map(move |kx| {
                 let x = (kx as f64 + 0.5) * grid_m;
                 let y = (ky as f64 + 0.5) * grid_m;
-                bvh.closest([x as f32, y as f32, z_start as f32], [0.0, 0.0, -1.0], depth)
-                    .map(|h| [x, y, z_start - f64::from(h.t)])
+                bvh.closest(
+                    [x as f32, y as f32, z_start as f32],
+                    [0.0, 0.0, -1.0],
+                    depth,
+                )
+                .map(|h| [x, y, z_start - f64::from(h.t)])
             })
         })
         .collect()
@@ -46,7 +50,11 @@ mod tests {
         let top = top_surface(&mesh, TOP_GRID_M);
         // About π r² / grid² rays hit.
         let expected = std::f64::consts::PI * 0.02f64.powi(2) / 1e-6;
-        assert!((top.len() as f64 - expected).abs() / expected < 0.03, "{}", top.len());
+        assert!(
+            (top.len() as f64 - expected).abs() / expected < 0.03,
+            "{}",
+            top.len()
+        );
         for p in &top {
             let r = (p[0] * p[0] + p[1] * p[1] + (p[2] - 0.05).powi(2)).sqrt();
             assert!((r - 0.02).abs() < 2e-4 && p[2] >= 0.05 - 1e-6, "{p:?}");

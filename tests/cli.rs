@@ -1,0 +1,179 @@
+//! The `mmnormd` binary as a user runs it: profile, simulate, inspect, and clear refusals.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn mmnormd(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("the mmnormd binary runs")
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+fn write_scene(dir: &Path, body: &str) -> PathBuf {
+    let path = dir.join("scene.toml");
+    let profile = repo("firmware_cfg/iwr1443_mmnorm.cfg");
+    std::fs::write(
+        &path,
+        format!(
+            "[radar]\nprofile = {:?}\n\n{body}",
+            profile.display().to_string()
+        ),
+    )
+    .unwrap();
+    path
+}
+
+const SMALL: &str = "[aperture]\nwidth_m = 0.03\nheight_m = 0.02\nspacing_m = 0.005\nz_m = 0.4\nlayout = \"iwr1443boost\"\n\
+[noise]\nsnr_db = 30.0\nseed = 5\n\
+[[object]]\nshape = \"cylinder\"\nradius_m = 0.02\nlength_m = 0.08\nposition_m = [0.0, 0.0, 0.02]\nrotation_deg = [0.0, 90.0, 0.0]\n";
+
+#[test]
+fn profile_prints_the_derived_frequency_plan() {
+    let o = mmnormd(&[
+        "profile",
+        repo("firmware_cfg/iwr1443_mmnorm.cfg").to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("77.500092 GHz"), "{t}");
+    assert!(t.contains("5861163.139 Hz"), "{t}");
+    assert!(t.contains("code 1214"), "{t}");
+}
+
+#[test]
+fn simulate_then_inspect_writes_a_capture_truth_and_a_picture() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), SMALL);
+    let out = dir.path().join("cap");
+    let o = mmnormd(&[
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    for f in [
+        "capture.json",
+        "tx.npy",
+        "rx.npy",
+        "samples.npy",
+        "truth.ply",
+        "truth_top.npy",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    // 7 × 5 positions × 4 RX.
+    let capture = mmnormd::capture::read_capture_dir(&out).unwrap();
+    assert_eq!(capture.antennas(), 140);
+    assert_eq!(
+        capture.extra["simulation"]["aperture"]["layout"],
+        "iwr1443boost"
+    );
+    let top = mmnormd::capture::dir::read_points_npy(&out.join("truth_top.npy")).unwrap();
+    assert!(
+        top.iter().all(|p| p[2] <= 0.04 + 1e-4 && p[2] >= 0.0),
+        "truth_top leaves the cylinder"
+    );
+
+    let png = dir.path().join("power.png");
+    let o = mmnormd(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("140 × 512 samples"), "{t}");
+    assert!(
+        std::fs::read(&png)
+            .unwrap()
+            .starts_with(b"\x89PNG\r\n\x1a\n")
+    );
+
+    // A second run into the same directory needs --force.
+    let o = mmnormd(&[
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--force"));
+}
+
+#[test]
+fn bad_scenes_are_refused_naming_field_and_value() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (SMALL.replace("z_m = 0.4", "z_m = nan"), "aperture.z_m"),
+        (
+            SMALL.replace("radius_m = 0.02", "radius_m = -0.02"),
+            "object[0].radius_m",
+        ),
+        (
+            SMALL.replace("length_m = 0.08", "length_m = 0.08\nsize_m = [1.0, 2.0]"),
+            "object[0].size_m",
+        ),
+        (
+            SMALL.replace("snr_db = 30.0", "snr_db = 30.0\ncolour = \"red\""),
+            "colour",
+        ),
+        (
+            SMALL.replace("shape = \"cylinder\"", "shape = \"torus\""),
+            "torus",
+        ),
+        (SMALL.replace("z_m = 0.4", "z_m = 0.01"), "aperture plane"),
+    ];
+    for (body, needle) in cases {
+        let scene = write_scene(dir.path(), &body);
+        let o = mmnormd(&[
+            "simulate",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--out",
+            dir.path().join("x").to_str().unwrap(),
+        ]);
+        let t = text(&o);
+        assert!(!o.status.success(), "accepted a bad scene ({needle})");
+        assert!(t.contains(needle), "error does not name `{needle}`: {t}");
+    }
+    assert!(!dir.path().join("x").join("capture.json").exists());
+}
+
+#[test]
+fn inspect_refuses_a_directory_that_is_not_a_capture() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = mmnormd(&["inspect", dir.path().to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("capture.json"), "{}", text(&o));
+}
+
+#[test]
+fn every_example_scene_loads() {
+    let mut n = 0;
+    for entry in std::fs::read_dir(repo("tools/scenes")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            mmnormd::sim::Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            n += 1;
+        }
+    }
+    assert!(n >= 4);
+}
