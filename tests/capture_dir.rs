@@ -85,6 +85,15 @@ fn refusal(spoil: impl FnOnce(&Path)) -> String {
     err.to_string()
 }
 
+/// Refusal of a capture whose `capture.json` has `from` replaced by `to`.
+fn json_refusal(from: &str, to: &str) -> String {
+    refusal(|d| {
+        let text = fs::read_to_string(d.join("capture.json")).unwrap();
+        assert!(text.contains(from), "{from} not in capture.json");
+        fs::write(d.join("capture.json"), text.replace(from, to)).unwrap();
+    })
+}
+
 #[test]
 fn damaged_captures_are_refused_naming_file_and_problem() {
     let e = refusal(|d| fs::remove_file(d.join("rx.npy")).unwrap());
@@ -134,37 +143,16 @@ fn damaged_captures_are_refused_naming_file_and_problem() {
     });
     assert!(e.contains("samples.npy") && e.contains("(N, T)"), "{e}");
 
-    let e = refusal(|d| {
-        let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(
-            d.join("capture.json"),
-            text.replace("\"samples_per_chirp\": 4", "\"samples_per_chirp\": 5"),
-        )
-        .unwrap();
-    });
+    let e = json_refusal("\"samples_per_chirp\": 4", "\"samples_per_chirp\": 5");
     assert!(
         e.contains("samples.npy") && e.contains("samples_per_chirp = 5"),
         "{e}"
     );
 
-    let e = refusal(|d| {
-        let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(
-            d.join("capture.json"),
-            text.replace("\"version\": 1", "\"version\": 2"),
-        )
-        .unwrap();
-    });
+    let e = json_refusal("\"version\": 1", "\"version\": 2");
     assert!(e.contains("capture.json") && e.contains("version"), "{e}");
 
-    let e = refusal(|d| {
-        let text = fs::read_to_string(d.join("capture.json")).unwrap();
-        fs::write(
-            d.join("capture.json"),
-            text.replace("\"range_offset_m\": 0.15", "\"range_offset_m\": \"far\""),
-        )
-        .unwrap();
-    });
+    let e = json_refusal("\"range_offset_m\": 0.15", "\"range_offset_m\": \"far\"");
     assert!(e.contains("range_offset_m"), "{e}");
 }
 

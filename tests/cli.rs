@@ -11,6 +11,16 @@ fn mmnormd(args: &[&str]) -> Output {
         .expect("the mmnormd binary runs")
 }
 
+fn simulate(scene: &Path, out: &Path) -> Output {
+    mmnormd(&[
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
 fn text(o: &Output) -> String {
     format!(
         "{}{}",
@@ -59,13 +69,7 @@ fn simulate_then_inspect_writes_a_capture_truth_and_a_picture() {
     let dir = tempfile::tempdir().unwrap();
     let scene = write_scene(dir.path(), SMALL);
     let out = dir.path().join("cap");
-    let o = mmnormd(&[
-        "simulate",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = simulate(&scene, &out);
     assert!(o.status.success(), "{}", text(&o));
     for f in [
         "capture.json",
@@ -107,13 +111,7 @@ fn simulate_then_inspect_writes_a_capture_truth_and_a_picture() {
     );
 
     // A second run into the same directory needs --force.
-    let o = mmnormd(&[
-        "simulate",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = simulate(&scene, &out);
     assert!(!o.status.success());
     assert!(text(&o).contains("--force"));
 }
@@ -143,13 +141,7 @@ fn bad_scenes_are_refused_naming_field_and_value() {
     ];
     for (body, needle) in cases {
         let scene = write_scene(dir.path(), &body);
-        let o = mmnormd(&[
-            "simulate",
-            "--scene",
-            scene.to_str().unwrap(),
-            "--out",
-            dir.path().join("x").to_str().unwrap(),
-        ]);
+        let o = simulate(&scene, &dir.path().join("x"));
         let t = text(&o);
         assert!(!o.status.success(), "accepted a bad scene ({needle})");
         assert!(t.contains(needle), "error does not name `{needle}`: {t}");

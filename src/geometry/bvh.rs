@@ -217,23 +217,37 @@ fn slab(n: &Node, o: [f32; 3], inv: [f32; 3], t_max: f32) -> bool {
 
 #[inline]
 fn intersect(tri: &Tri, o: [f32; 3], d: [f32; 3], t_max: f32) -> Option<f32> {
-    let p = cross(d, tri.e2);
-    let det = dot(tri.e1, p);
+    ray_triangle(tri.v0, tri.e1, tri.e2, o, d, t_max)
+}
+
+/// Möller–Trumbore: the distance 0 < t < `t_max` at which `o + t·d` meets the triangle
+/// `v0 + u·e1 + v·e2`.
+#[inline]
+pub(crate) fn ray_triangle(
+    v0: [f32; 3],
+    e1: [f32; 3],
+    e2: [f32; 3],
+    o: [f32; 3],
+    d: [f32; 3],
+    t_max: f32,
+) -> Option<f32> {
+    let p = cross(d, e2);
+    let det = dot(e1, p);
     if det.abs() < 1e-20 {
         return None;
     }
     let inv = 1.0 / det;
-    let s = sub(o, tri.v0);
+    let s = sub(o, v0);
     let u = dot(s, p) * inv;
     if !(0.0..=1.0).contains(&u) {
         return None;
     }
-    let q = cross(s, tri.e1);
+    let q = cross(s, e1);
     let v = dot(d, q) * inv;
     if v < 0.0 || u + v > 1.0 {
         return None;
     }
-    let t = dot(tri.e2, q) * inv;
+    let t = dot(e2, q) * inv;
     (t > 0.0 && t < t_max).then_some(t)
 }
 

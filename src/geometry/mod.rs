@@ -6,11 +6,13 @@
 
 mod bvh;
 mod io;
+mod occluders;
 pub mod ply;
 mod primitives;
 
 pub use bvh::{Bvh, Hit};
 pub use io::{MeshError, load_mesh};
+pub use occluders::{FrontOccluders, LocalVisibility, ViewRegion};
 pub use primitives::{box_mesh, cylinder_mesh, plate_mesh, sphere_mesh};
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};

@@ -41,7 +41,7 @@ use super::scene::{ObjectGeometry, Occluder, Scene};
 use super::surface::{self, Cluster, EdgeSample, Samples};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::{Capture, FrequencyPlan};
-use crate::geometry::{Bvh, TriMesh};
+use crate::geometry::{Bvh, FrontOccluders, LocalVisibility, TriMesh, ViewRegion};
 use crate::progress::Progress;
 use crate::signal::{Rng, ToneAccumulator};
 
@@ -96,10 +96,13 @@ struct Scatterers {
     cluster_object: Vec<u16>,
     diff_object: Vec<u16>,
     edge_object: Vec<u16>,
-    /// One BVH per object (empty for point targets) and whether the object is convex.
+    /// One BVH per object (empty for point targets) and its front-side occluder lists.
     bvhs: Vec<Bvh>,
-    convex: Vec<bool>,
+    local: Vec<FrontOccluders>,
 }
+
+/// Longest per-triangle occluder list kept before falling back to the BVH.
+const MAX_LOCAL_OCCLUDERS: usize = 48;
 
 /// No object: point targets test every object's geometry.
 const NO_OBJECT: u16 = u16::MAX;
@@ -162,7 +165,8 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         .as_ref()
         .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone());
     let antennas = raster_antennas(&scene.aperture, &rx_channels, lambda0_m);
-    let (scatterers, truth_mesh) = prepare(scene);
+    let view = view_region(&antennas);
+    let (scatterers, truth_mesh) = prepare(scene, &view);
     let set = &scene.settings;
     let ctx = Ctx {
         s: &scatterers,
@@ -280,8 +284,21 @@ fn add_noise(samples: &mut [Complex32], t: usize, snr_db: f64, seed: u64) -> f64
     sigma
 }
 
+/// The rectangle that holds every TX and RX position (all lie in the aperture plane).
+fn view_region(antennas: &Antennas) -> ViewRegion {
+    let mut x_m = [f64::INFINITY, f64::NEG_INFINITY];
+    let mut y_m = x_m;
+    let mut z_m = f64::NEG_INFINITY;
+    for p in antennas.tx_m.iter().chain(&antennas.rx_m) {
+        x_m = [x_m[0].min(p[0]), x_m[1].max(p[0])];
+        y_m = [y_m[0].min(p[1]), y_m[1].max(p[1])];
+        z_m = z_m.max(p[2]);
+    }
+    ViewRegion { x_m, y_m, z_m }
+}
+
 /// Samples every object and merges the surfaces into the truth mesh.
-fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
+fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
     let set = &scene.settings;
     let mut truth = TriMesh::default();
     let mut s = Scatterers {
@@ -300,7 +317,7 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
         diff_object: Vec::new(),
         edge_object: Vec::new(),
         bvhs: Vec::new(),
-        convex: Vec::new(),
+        local: Vec::new(),
     };
     let half_lambda0_m = (scene.plan.first_wavelength_m() / 2.0) as f32;
     let mut rough = Rng::for_stream(scene.seed, ROUGHNESS_STREAM, 0);
@@ -312,7 +329,7 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
                 let amp = (rcs_m2 / (4.0 * std::f64::consts::PI)).sqrt() as f32;
                 s.points.push((f32v(*position_m), amp));
                 s.bvhs.push(Bvh::build(&TriMesh::default()));
-                s.convex.push(true);
+                s.local.push(FrontOccluders::default());
             }
             ObjectGeometry::Surface(mesh) => {
                 let normals = surface::corner_normals(mesh, set.crease_angle_deg);
@@ -363,7 +380,16 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
                     s.edges.extend(edges);
                 }
                 s.bvhs.push(Bvh::build(mesh));
-                s.convex.push(surface::is_convex(mesh));
+                // Ray origins sit RAY_OFFSET_M off the surface; allow twice that.
+                let margin = 2.0 * f64::from(RAY_OFFSET_M);
+                let local = FrontOccluders::build(mesh, view, margin, MAX_LOCAL_OCCLUDERS);
+                tracing::debug!(
+                    "{}: {} of {} triangles need the BVH for self-occlusion",
+                    object.name,
+                    local.overflowing(),
+                    mesh.triangles.len()
+                );
+                s.local.push(local);
                 truth.append(mesh);
             }
         }
@@ -373,14 +399,22 @@ fn prepare(scene: &Scene) -> (Scatterers, TriMesh) {
 
 impl Ctx<'_> {
     /// Whether the straight leg from `origin` (distance `d`, direction `u`) is free of every
-    /// object's geometry, skipping `own` when `skip_own` (a convex object seen from the front).
+    /// object's geometry. `front` = (object, triangle) when the leg leaves that triangle on its
+    /// front side: then only the triangle's candidate occluders of its own object are tested.
     #[inline]
-    fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32, own: u16, skip_own: bool) -> bool {
-        self.s
-            .bvhs
-            .iter()
-            .enumerate()
-            .all(|(k, bvh)| (skip_own && k == usize::from(own)) || !bvh.occluded(origin, u, d))
+    fn clear(&self, origin: [f32; 3], u: [f32; 3], d: f32, front: Option<(u16, u32)>) -> bool {
+        self.s.bvhs.iter().enumerate().all(|(k, bvh)| {
+            if let Some((own, face)) = front
+                && k == usize::from(own)
+            {
+                match self.s.local[k].test(face, origin, u, d) {
+                    LocalVisibility::Clear => return true,
+                    LocalVisibility::Blocked => return false,
+                    LocalVisibility::Unknown => {}
+                }
+            }
+            !bvh.occluded(origin, u, d)
+        })
     }
 
     /// Pattern and sheet factors and the sheet's extra path for both legs.
@@ -407,11 +441,10 @@ impl Ctx<'_> {
         (amp, extra)
     }
 
-    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`. `face` is a
-    /// face normal at `p` of object `own`: when both legs leave on its front side and the
-    /// object is convex, the object cannot block them.
+    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`. `faces` are
+    /// (object, triangle, face normal) candidates at `p`: the first one whose front side both
+    /// legs leave lets [`FrontOccluders`] stand in for the object's BVH.
     #[inline]
-    #[allow(clippy::too_many_arguments)]
     fn visible(
         &self,
         p: [f32; 3],
@@ -419,15 +452,14 @@ impl Ctx<'_> {
         (ut, dt): ([f32; 3], f32),
         (ur, dr): ([f32; 3], f32),
         same: bool,
-        own: u16,
-        face: [f32; 3],
+        faces: &[(u16, u32, [f32; 3])],
     ) -> bool {
-        let skip_own = own != NO_OBJECT
-            && self.s.convex[usize::from(own)]
-            && dot(face, ut) > 0.0
-            && dot(face, ur) > 0.0;
+        let front = faces
+            .iter()
+            .find(|(own, _, n)| *own != NO_OBJECT && dot(*n, ut) > 0.0 && dot(*n, ur) > 0.0)
+            .map(|&(own, face, _)| (own, face));
         let o = add(p, scale(offset_dir, RAY_OFFSET_M));
-        self.clear(o, ut, dt, own, skip_own) && (same || self.clear(o, ur, dr, own, skip_own))
+        self.clear(o, ut, dt, front) && (same || self.clear(o, ur, dr, front))
     }
 
     /// Sums every scatterer's return for one virtual antenna. Specular terms go to `spec`
@@ -483,10 +515,14 @@ impl Ctx<'_> {
                 };
                 let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
                 let amp = s.spec_weight[i] * 0.5 * (ct + cr) * w * f / (dt * dr);
-                if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, own, c.axis) {
+                let faces = [(own, c.triangle, c.axis)];
+                if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, &faces) {
                     continue;
                 }
-                spec.add(Complex32::new(0.0, -amp), f64::from(dt + dr + extra));
+                spec.add(
+                    Complex32::new(0.0, -amp),
+                    f64::from(dt) + f64::from(dr) + f64::from(extra),
+                );
                 count += 1;
             }
         }
@@ -507,11 +543,14 @@ impl Ctx<'_> {
                 .powf(s.diff_half_alpha[i]);
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = s.diff_weight[i] * ct.sqrt() * lobe * f / (dt * dr);
-            let face = s.diff.face_normal[i];
-            if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, s.diff_object[i], face) {
+            let faces = [(s.diff_object[i], s.diff.triangle[i], s.diff.face_normal[i])];
+            if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, &faces) {
                 continue;
             }
-            other.add(s.diff_phasor[i] * amp, f64::from(dt + dr + extra));
+            other.add(
+                s.diff_phasor[i] * amp,
+                f64::from(dt) + f64::from(dr) + f64::from(extra),
+            );
             count += 1;
         }
 
@@ -543,18 +582,14 @@ impl Ctx<'_> {
             };
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
             let amp = weight * f / (dt * dr);
-            // The face the legs leave from: the one that sees the TX (either, for a rim).
-            let face = if dot(e.n1, ut) > 0.0 {
-                e.n1
-            } else if rim {
-                scale(e.n1, -1.0)
-            } else {
-                e.n2
-            };
-            if amp == 0.0 || !self.visible(p, offset_dir, (ut, dt), (ur, dr), same, own, face) {
+            let faces = [(own, e.faces[0], e.n1), (own, e.faces[1], e.n2)];
+            if amp == 0.0 || !self.visible(p, offset_dir, (ut, dt), (ur, dr), same, &faces) {
                 continue;
             }
-            other.add(Complex32::new(amp, 0.0), f64::from(dt + dr + extra));
+            other.add(
+                Complex32::new(amp, 0.0),
+                f64::from(dt) + f64::from(dr) + f64::from(extra),
+            );
             count += 1;
         }
 
@@ -562,12 +597,12 @@ impl Ctx<'_> {
             let (ut, dt) = towards(p, tx);
             let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
             let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-            if !self.visible(p, [0.0; 3], (ut, dt), (ur, dr), same, NO_OBJECT, [0.0; 3]) {
+            if !self.visible(p, [0.0; 3], (ut, dt), (ur, dr), same, &[]) {
                 continue;
             }
             other.add(
                 Complex32::new(a * f / (dt * dr), 0.0),
-                f64::from(dt + dr + extra),
+                f64::from(dt) + f64::from(dr) + f64::from(extra),
             );
             count += 1;
         }

@@ -145,10 +145,10 @@ impl Default for SimulationSpec {
 }
 
 fn default_full() -> f64 {
-    2.0
+    1.5
 }
 fn default_cutoff() -> f64 {
-    4.0
+    3.0
 }
 fn default_crease() -> f64 {
     30.0

@@ -14,9 +14,6 @@
 //!   area sampling at a uniformly random point of the triangle where each cell boundary falls.
 //!   Diffuse scattering is incoherent, so only its mean power per area matters, not λ/4 phase
 //!   sampling.
-//! - **Convexity.** [`is_convex`] tells whether every vertex lies behind every face's plane. A ray
-//!   leaving a point of such a mesh on the front side of that point's face can never meet the
-//!   mesh again, so the simulator skips those self-occlusion tests exactly.
 //! - **Edges.** A mesh edge is sharp when it has one face (a free rim, e.g. a plate), more than
 //!   two, or two faces whose normals differ by more than the crease angle. Sharp edges are cut
 //!   into pieces no longer than `spacing`.
@@ -40,6 +37,8 @@ pub struct Cluster {
     pub curvature_per_m: f32,
     pub first: u32,
     pub count: u32,
+    /// The mesh triangle these samples lie on.
+    pub triangle: u32,
 }
 
 /// Surface samples in structure-of-arrays form.
@@ -50,6 +49,8 @@ pub struct Samples {
     pub normal: Vec<[f32; 3]>,
     /// Normal of the flat triangle the sample lies on.
     pub face_normal: Vec<[f32; 3]>,
+    /// Index of that triangle in its mesh.
+    pub triangle: Vec<u32>,
     pub area_m2: Vec<f32>,
 }
 
@@ -58,10 +59,11 @@ fn f32v(v: Vector3<f64>) -> [f32; 3] {
 }
 
 impl Samples {
-    fn push(&mut self, p: Vector3<f64>, n: Vector3<f64>, face: Vector3<f64>, area: f64) {
+    fn push(&mut self, p: Vector3<f64>, n: Vector3<f64>, face: (Vector3<f64>, usize), area: f64) {
         self.position.push(f32v(p));
         self.normal.push(f32v(n));
-        self.face_normal.push(f32v(face));
+        self.face_normal.push(f32v(face.0));
+        self.triangle.push(face.1 as u32);
         self.area_m2.push(area as f32);
     }
 
@@ -70,6 +72,7 @@ impl Samples {
         self.position.extend(other.position);
         self.normal.extend(other.normal);
         self.face_normal.extend(other.face_normal);
+        self.triangle.extend(other.triangle);
         self.area_m2.extend(other.area_m2);
     }
 
@@ -93,6 +96,8 @@ pub struct EdgeSample {
     /// Whether the wedge is convex (exterior = seen by either face) or concave (exterior = seen
     /// by both faces). A free rim counts as convex.
     pub convex: bool,
+    /// The mesh triangles of `n1` and `n2`.
+    pub faces: [u32; 2],
 }
 
 /// Per-triangle corner normals with crease handling.
@@ -165,7 +170,7 @@ pub fn sample_surface(
             // (bu, bv) are barycentric coordinates of the centroid along b and c.
             let p = a + (b - a) * bu + (c - a) * bv;
             let nrm = interpolated_normal(corner_n, bu, bv, face_n);
-            samples.push(p, nrm, face_n, sub_area);
+            samples.push(p, nrm, (face_n, f), sub_area);
         };
         let nf = n as f64;
         for i in 0..n {
@@ -202,6 +207,7 @@ pub fn sample_surface(
             axis: [face_n.x as f32, face_n.y as f32, face_n.z as f32],
             cos_half_angle: cos_half as f32,
             curvature_per_m: curvature as f32,
+            triangle: f as u32,
             first,
             count: samples.len() as u32 - first,
         });
@@ -247,31 +253,17 @@ pub fn sample_by_area(
             let (r1, r2) = (rng.uniform().sqrt(), rng.uniform());
             let (bu, bv) = (r1 * (1.0 - r2), r1 * r2);
             let p = a + (b - a) * bu + (c - a) * bv;
-            samples.push(p, interpolated_normal(corner_n, bu, bv, face), face, cell);
+            samples.push(
+                p,
+                interpolated_normal(corner_n, bu, bv, face),
+                (face, f),
+                cell,
+            );
         }
     }
     let share = (walked / samples.len().max(1) as f64) as f32;
     samples.area_m2.fill(share);
     samples
-}
-
-/// Whether every vertex lies on or behind every face's plane (within rounding).
-pub fn is_convex(mesh: &TriMesh) -> bool {
-    let Some((lo, hi)) = mesh.bounds() else {
-        return true;
-    };
-    let size = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
-    let tolerance = 1e-9 * size.max(1e-3);
-    (0..mesh.triangles.len()).all(|f| {
-        let [a, b, c] = mesh.corners(f);
-        let Some(n) = (b - a).cross(&(c - a)).try_normalize(0.0) else {
-            return true;
-        };
-        let d = n.dot(&a);
-        mesh.vertices_m
-            .iter()
-            .all(|v| n.dot(&Vector3::from(*v)) <= d + tolerance)
-    })
 }
 
 /// Cuts the sharp edges of `mesh` into pieces no longer than `spacing_m`.
@@ -303,10 +295,10 @@ pub fn sample_edges(mesh: &TriMesh, crease_deg: f64, spacing_m: f64) -> Vec<Edge
     let mut out = Vec::new();
     for key in keys {
         let faces = &edges[&key];
-        let (n1, n2, convex) = match faces.as_slice() {
+        let (n1, n2, convex, pair) = match faces.as_slice() {
             [f] => {
                 let n = face_normal(*f);
-                (n, n, true)
+                (n, n, true, [*f, *f])
             }
             [f, g] => {
                 let (n1, n2) = (face_normal(*f), face_normal(*g));
@@ -315,11 +307,11 @@ pub fn sample_edges(mesh: &TriMesh, crease_deg: f64, spacing_m: f64) -> Vec<Edge
                 }
                 let p = Vector3::from(mesh.vertices_m[key.0 as usize]);
                 let convex = (face_centre(*g) - p).dot(&n1) <= 0.0;
-                (n1, n2, convex)
+                (n1, n2, convex, [*f, *g])
             }
             many => {
                 let n = face_normal(many[0]);
-                (n, n, true)
+                (n, n, true, [many[0], many[0]])
             }
         };
         let a = Vector3::from(mesh.vertices_m[key.0 as usize]);
@@ -335,6 +327,7 @@ pub fn sample_edges(mesh: &TriMesh, crease_deg: f64, spacing_m: f64) -> Vec<Edge
                 n1: f32v(n1),
                 n2: f32v(n2),
                 convex,
+                faces: pair,
             });
         }
     }
@@ -375,7 +368,7 @@ mod tests {
     }
 
     #[test]
-    fn area_sampling_keeps_the_area_and_convexity_is_detected() {
+    fn area_sampling_keeps_the_area() {
         let sphere = sphere_mesh(0.05, 0.003);
         let normals = corner_normals(&sphere, 30.0);
         let s = sample_by_area(&sphere, &normals, 0.004, &mut Rng::new(3));
@@ -387,14 +380,6 @@ mod tests {
             "{} vs {expected}",
             s.len()
         );
-        assert!(is_convex(&sphere));
-        assert!(is_convex(&plate_mesh([0.1, 0.1], 0.01)));
-        let mut two = box_mesh([0.02, 0.02, 0.02], 0.01);
-        two.append(
-            &box_mesh([0.02, 0.02, 0.02], 0.01)
-                .transformed(&crate::geometry::pose_from([0.05, 0.0, 0.0], [0.0; 3])),
-        );
-        assert!(!is_convex(&two));
     }
 
     #[test]
