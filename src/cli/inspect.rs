@@ -111,7 +111,18 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
+/// Median gap between distinct coordinates along axis `k` (the raster pitch), if any.
+fn pitch(centres: &[[f64; 3]], k: usize) -> Option<f64> {
+    let mut v: Vec<f64> = centres.iter().map(|p| (p[k] * 1e7).round() / 1e7).collect();
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    let mut gaps: Vec<f64> = v.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_by(f64::total_cmp);
+    gaps.get(gaps.len() / 2).copied()
+}
+
 /// Places each antenna's power in a cell of an image spanning the aperture (max per cell).
+/// Cells are one raster pitch wide when the picture fits in `MAX_SIDE`, else coarser.
 fn aperture_image(
     centres: &[[f64; 3]],
     power_db: &[f32],
@@ -119,13 +130,17 @@ fn aperture_image(
     hi: [f64; 3],
 ) -> ScalarImage {
     let (wx, wy) = ((hi[0] - lo[0]).max(1e-9), (hi[1] - lo[1]).max(1e-9));
-    let cell = wx.max(wy) / MAX_SIDE as f64;
-    let width = ((wx / cell).floor() as usize + 1).min(MAX_SIDE + 1);
-    let height = ((wy / cell).floor() as usize + 1).min(MAX_SIDE + 1);
+    let raster = pitch(centres, 0)
+        .into_iter()
+        .chain(pitch(centres, 1))
+        .fold(0.0, f64::max);
+    let cell = (wx.max(wy) / MAX_SIDE as f64).max(raster * 0.999);
+    let width = ((wx / cell).round() as usize + 1).min(MAX_SIDE + 1);
+    let height = ((wy / cell).round() as usize + 1).min(MAX_SIDE + 1);
     let mut values = vec![f32::NAN; width * height];
     for (p, &v) in centres.iter().zip(power_db) {
-        let x = (((p[0] - lo[0]) / cell) as usize).min(width - 1);
-        let y = height - 1 - (((p[1] - lo[1]) / cell) as usize).min(height - 1);
+        let x = (((p[0] - lo[0]) / cell).round() as usize).min(width - 1);
+        let y = height - 1 - (((p[1] - lo[1]) / cell).round() as usize).min(height - 1);
         let cell_v = &mut values[y * width + x];
         if cell_v.is_nan() || v > *cell_v {
             *cell_v = v;
