@@ -165,7 +165,7 @@ pub fn decode_f64_rows(bytes: &[u8]) -> Result<Vec<[f64; 3]>, NpyError> {
             });
         }
     };
-    a.expect_len(n * 24)?;
+    a.expect_len(n.checked_mul(24))?;
     Ok(a.data
         .chunks_exact(24)
         .map(|row| {
@@ -192,7 +192,7 @@ pub fn decode_c64(bytes: &[u8]) -> Result<(Vec<Complex32>, usize, usize), NpyErr
             });
         }
     };
-    a.expect_len(n * t * 8)?;
+    a.expect_len(n.checked_mul(t).and_then(|x| x.checked_mul(8)))?;
     let samples = a
         .data
         .chunks_exact(8)
@@ -221,7 +221,10 @@ impl NpyArray<'_> {
         Ok(())
     }
 
-    fn expect_len(&self, expected: usize) -> Result<(), NpyError> {
+    /// `expected` is `None` when the header's shape overflows.
+    fn expect_len(&self, expected: Option<usize>) -> Result<(), NpyError> {
+        let expected =
+            expected.ok_or_else(|| NpyError::BadHeader("the shape is too large".into()))?;
         if self.data.len() != expected {
             return Err(NpyError::DataLength {
                 expected,
@@ -376,6 +379,13 @@ mod tests {
             parse(b"PK\x03\x04 not numpy at all"),
             Err(NpyError::BadMagic)
         );
+    }
+
+    #[test]
+    fn overflowing_shapes_are_refused() {
+        let mut b = header("<c8", &[usize::MAX / 4, 16]);
+        b.extend_from_slice(&[0u8; 8]);
+        assert!(matches!(decode_c64(&b), Err(NpyError::BadHeader(_))));
     }
 
     #[test]

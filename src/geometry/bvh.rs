@@ -9,6 +9,9 @@ use super::TriMesh;
 const BINS: usize = 12;
 const MAX_LEAF: usize = 4;
 const STACK: usize = 64;
+/// Deepest interior level; below it nodes become (larger) leaves, so traversal never needs
+/// more than `STACK` entries.
+const MAX_DEPTH: usize = STACK - 2;
 
 #[derive(Debug, Clone, Copy)]
 struct Node {
@@ -120,7 +123,7 @@ impl Bvh {
         }];
         if !prims.is_empty() {
             let n = prims.len();
-            build_node(&mut nodes, 0, &mut prims, 0, n);
+            build_node(&mut nodes, 0, &mut prims, 0, n, 0);
         }
         let tri_ids: Vec<u32> = prims.iter().map(|p| p.id).collect();
         let tris = tri_ids
@@ -192,7 +195,8 @@ impl Bvh {
                         }
                     }
                 }
-            } else if sp + 2 <= STACK {
+            } else {
+                // Depth ≤ MAX_DEPTH keeps sp + 2 ≤ STACK: each level leaves one sibling.
                 stack[sp] = node.start;
                 stack[sp + 1] = node.start + 1;
                 sp += 2;
@@ -251,7 +255,14 @@ pub(crate) fn ray_triangle(
     (t > 0.0 && t < t_max).then_some(t)
 }
 
-fn build_node(nodes: &mut Vec<Node>, index: usize, prims: &mut [Prim], start: usize, end: usize) {
+fn build_node(
+    nodes: &mut Vec<Node>,
+    index: usize,
+    prims: &mut [Prim],
+    start: usize,
+    end: usize,
+    depth: usize,
+) {
     let mut bounds = Aabb::EMPTY;
     let mut cbounds = Aabb::EMPTY;
     for p in &prims[start..end] {
@@ -265,7 +276,7 @@ fn build_node(nodes: &mut Vec<Node>, index: usize, prims: &mut [Prim], start: us
         start: start as u32,
         count: count as u32,
     };
-    if count <= MAX_LEAF {
+    if count <= MAX_LEAF || depth >= MAX_DEPTH {
         nodes[index] = leaf;
         return;
     }
@@ -335,8 +346,8 @@ fn build_node(nodes: &mut Vec<Node>, index: usize, prims: &mut [Prim], start: us
         start: left as u32,
         count: 0,
     };
-    build_node(nodes, left, prims, start, mid);
-    build_node(nodes, left + 1, prims, mid, end);
+    build_node(nodes, left, prims, start, mid, depth + 1);
+    build_node(nodes, left + 1, prims, mid, end, depth + 1);
 }
 
 #[cfg(test)]

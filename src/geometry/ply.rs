@@ -257,9 +257,11 @@ fn list_len(n: f64) -> Result<usize, String> {
 
 fn read_vertices(e: &Element, r: &mut dyn ValueReader, out: &mut PlyData) -> Result<(), String> {
     let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
+    // The count comes from the file: do not trust it for allocation.
+    let capacity = e.count.min(1 << 20);
     for p in &e.properties {
         if let Property::Scalar(name, _) = p {
-            columns.push((name.clone(), Vec::with_capacity(e.count)));
+            columns.push((name.clone(), Vec::with_capacity(capacity)));
         }
     }
     for _ in 0..e.count {
@@ -301,7 +303,7 @@ fn read_faces(e: &Element, r: &mut dyn ValueReader, out: &mut PlyData) -> Result
                     if name == "vertex_indices" || name == "vertex_index" =>
                 {
                     let n = list_len(r.next(*count_ty)?)?;
-                    let mut poly = Vec::with_capacity(n);
+                    let mut poly = Vec::with_capacity(n.min(64));
                     for _ in 0..n {
                         let v = r.next(*item_ty)?;
                         if v < 0.0 || v.fract() != 0.0 || v > u32::MAX as f64 {
@@ -427,6 +429,12 @@ mod tests {
         assert_eq!(p.triangles, vec![[0, 1, 2], [0, 2, 3]]);
         assert_eq!(p.normals.unwrap()[3], [0.0, 0.0, 1.0]);
         assert_eq!(p.vertex_properties[6].1[3], 9.0);
+    }
+
+    #[test]
+    fn absurd_counts_fail_cleanly() {
+        let text = "ply\nformat binary_little_endian 1.0\nelement vertex 999999999999\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+        assert!(parse(text.as_bytes()).unwrap_err().contains("truncated"));
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! The forward model: a scene in, a capture out.
 //!
 //! Every reflection is single-bounce, with free-space spreading 1/(d_tx·d_rx) and visibility
-//! checked by BVH shadow rays on both the TX and the RX leg. Amplitudes are in *image units*: a
+//! checked by shadow rays on both the TX and the RX leg: against other objects through their
+//! BVHs, and against the scatterer's own object through the exact per-triangle candidate lists
+//! of [`FrontOccluders`] (the BVH where a list is too long). Amplitudes are in *image units*: a
 //! scatterer of bistatic RCS σ returns `√(σ/4π)/(d_tx·d_rx)`, so an infinite mirror at distance R
 //! returns 1/(2R). Three surface terms, one per physical mechanism:
 //!
@@ -18,13 +20,13 @@
 //!    those are handled by term 3. The −j and the 1/λ_t make the stationary-phase sum equal
 //!    image theory. The tests `plate_return_matches_image_theory` and
 //!    `sphere_return_matches_geometric_optics` (a/(2R(R+a))) check both.
-//! 2. **Diffuse (directive model).** Samples at a coarser spacing, each with a fixed random
+//! 2. **Diffuse (directive model).** One sample per λ0² of area, each with a fixed random
 //!    phase (frozen roughness), scatter with the Degli-Esposti directive lobe: bistatic RCS
 //!    `σ = 4π·S²·A·cos θ_i·((1 + cos ψ)/2)^α · (α + 1)/(4π)`, where ψ is the angle between the
 //!    scattered direction and the specular direction. The (α + 1)/4π normalises the lobe over
 //!    the sphere.
 //! 3. **Edge diffraction.** Pieces of sharp edges of length dl contribute
-//!    `κ·dl/(2π)/(d_tx·d_rx)`, visible only from the wedge's exterior. Summed coherently along a
+//!    `e·dl/(2π)/(d_tx·d_rx)` (e: the material's `edge` scale), visible only from the wedge's exterior. Summed coherently along a
 //!    straight edge this gives the half-plane's broadside RCS L²/π, and Keller's cone emerges
 //!    from the stationary phase along the edge.
 //!
