@@ -274,3 +274,29 @@ fn the_same_seed_gives_identical_files_and_another_seed_differs() {
     assert_ne!(a, c);
     assert!(read_capture_dir(&dir.path().join("a")).is_ok());
 }
+
+#[test]
+fn four_rx_point_target_matches_each_bistatic_path() {
+    let s = scene(&format!(
+        "{}layout = \"iwr1443boost\"\nantenna_pattern = \"isotropic\"\n\
+         [[object]]\nshape = \"point\"\nposition_m = [0.02, 0.01, 0.0]\nrcs_m2 = 0.01\n",
+        single_antenna(0.0, 0.0, 0.4)
+    ));
+    let out = simulate(&s, true);
+    assert_eq!(out.capture.antennas(), 4);
+    let p = [0.02, 0.01, 0.0];
+    let dist = |a: &[f64; 3]| {
+        ((a[0] - p[0]).powi(2) + (a[1] - p[1]).powi(2) + (a[2] - p[2]).powi(2)).sqrt()
+    };
+    for k in 0..4 {
+        let (tx, rx) = (out.capture.tx_m[k], out.capture.rx_m[k]);
+        let (amp, worst_phase) = compare_to_tone(&s, out.capture.chirp(k), dist(&tx) + dist(&rx));
+        let expected = (0.01 / (4.0 * std::f64::consts::PI)).sqrt() / (dist(&tx) * dist(&rx));
+        println!(
+            "RX {k} at x offset {:+.4} m: amplitude error {:.1e}, worst phase error {worst_phase:.1e} rad",
+            rx[0] - tx[0],
+            amp / expected - 1.0
+        );
+        assert!(worst_phase < 1e-3 && (amp / expected - 1.0).abs() < 1e-4);
+    }
+}

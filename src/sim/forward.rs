@@ -185,31 +185,38 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         .collect();
     let mut samples = vec![Complex32::new(0.0, 0.0); n * t];
     let progress = Progress::new("simulate", n as u64, quiet);
+    let per = antennas.per_position.max(1);
     let contributions: u64 = samples
-        .par_chunks_mut(t)
+        .par_chunks_mut(t * per)
         .enumerate()
         .map_init(
             || {
-                (
-                    ToneAccumulator::new(&plan, scene.range_offset_m),
-                    ToneAccumulator::new(&plan, scene.range_offset_m),
-                )
+                let acc = ToneAccumulator::new(&plan, scene.range_offset_m);
+                (vec![acc.clone(); per], vec![acc; per])
             },
-            |(spec_acc, other_acc), (i, out)| {
-                spec_acc.clear();
-                other_acc.clear();
-                let tx = antennas.tx_m[i];
-                let rx = antennas.rx_m[i];
-                let count = ctx.antenna(f32v(tx), f32v(rx), spec_acc, other_acc);
-                spec_acc.scale_by(&inv_wavelength);
-                spec_acc.add_into(out);
-                other_acc.add_into(out);
-                if let Some(occ) = ctx.occluder
-                    && let Some((factors, path_m)) = occ.reflection(&plan, tx, rx)
-                {
-                    add_sheet_reflection(&plan, scene.range_offset_m, &factors, path_m, out);
+            |(spec, other), (position, out)| {
+                spec.iter_mut()
+                    .chain(other.iter_mut())
+                    .for_each(ToneAccumulator::clear);
+                let first = position * per;
+                let tx = antennas.tx_m[first];
+                let rxs: Vec<[f32; 3]> = antennas.rx_m[first..first + per]
+                    .iter()
+                    .map(|r| f32v(*r))
+                    .collect();
+                let count = ctx.position(f32v(tx), &rxs, spec, other);
+                for (k, chirp) in out.chunks_exact_mut(t).enumerate() {
+                    spec[k].scale_by(&inv_wavelength);
+                    spec[k].add_into(chirp);
+                    other[k].add_into(chirp);
+                    if let Some(occ) = ctx.occluder
+                        && let Some((factors, path_m)) =
+                            occ.reflection(&plan, tx, antennas.rx_m[first + k])
+                    {
+                        add_sheet_reflection(&plan, scene.range_offset_m, &factors, path_m, chirp);
+                    }
                 }
-                progress.inc(1);
+                progress.inc(per as u64);
                 count
             },
         )
@@ -399,6 +406,16 @@ fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
     (s, truth)
 }
 
+/// One leg of a path, from a scatterer to an antenna: direction, length, the pattern and sheet
+/// amplitude factor and the sheet's extra path.
+#[derive(Clone, Copy)]
+struct Leg {
+    u: [f32; 3],
+    d: f32,
+    factor: f32,
+    extra_m: f32,
+}
+
 impl Ctx<'_> {
     /// Whether the straight leg from `origin` (distance `d`, direction `u`) is free of every
     /// object's geometry. `front` = (object, triangle) when the leg leaves that triangle on its
@@ -419,65 +436,70 @@ impl Ctx<'_> {
         })
     }
 
-    /// Pattern and sheet factors and the sheet's extra path for both legs.
+    /// The leg from `p` to antenna `a` with its pattern and sheet factors.
     #[inline]
-    fn path_factors(
-        &self,
-        p: [f32; 3],
-        tx: [f32; 3],
-        rx: [f32; 3],
-        ut: [f32; 3],
-        ur: [f32; 3],
-    ) -> (f32, f32) {
-        let mut amp = 1.0;
-        if !self.pattern.is_isotropic() {
-            amp *= self.pattern.gain(scale(ut, -1.0)) * self.pattern.gain(scale(ur, -1.0));
-        }
-        let mut extra = 0.0;
+    fn leg(&self, p: [f32; 3], a: [f32; 3]) -> Leg {
+        let (u, d) = towards(p, a);
+        let mut factor = self.pattern.gain(scale(u, -1.0));
+        let mut extra_m = 0.0;
         if let Some(o) = self.occluder {
-            let (a1, e1) = o.leg(p, tx);
-            let (a2, e2) = o.leg(p, rx);
-            amp *= a1 * a2;
-            extra = e1 + e2;
+            let (amp, extra) = o.leg(p, a);
+            factor *= amp;
+            extra_m = extra;
         }
-        (amp, extra)
+        Leg {
+            u,
+            d,
+            factor,
+            extra_m,
+        }
     }
 
-    /// Both legs free of geometry, starting `RAY_OFFSET_M` along `offset_dir`. `faces` are
-    /// (object, triangle, face normal) candidates at `p`: the first one whose front side both
-    /// legs leave lets [`FrontOccluders`] stand in for the object's BVH.
+    /// Whether `leg` is free of geometry, starting `RAY_OFFSET_M` along `offset_dir`. `faces`
+    /// are (object, triangle, face normal) candidates at `p`: the first one whose front side the
+    /// leg leaves lets [`FrontOccluders`] stand in for that object's BVH.
     #[inline]
-    fn visible(
+    fn leg_clear(
         &self,
         p: [f32; 3],
         offset_dir: [f32; 3],
-        (ut, dt): ([f32; 3], f32),
-        (ur, dr): ([f32; 3], f32),
-        same: bool,
+        leg: &Leg,
         faces: &[(u16, u32, [f32; 3])],
     ) -> bool {
         let front = faces
             .iter()
-            .find(|(own, _, n)| *own != NO_OBJECT && dot(*n, ut) > 0.0 && dot(*n, ur) > 0.0)
+            .find(|(own, _, n)| *own != NO_OBJECT && dot(*n, leg.u) > 0.0)
             .map(|&(own, face, _)| (own, face));
         let o = add(p, scale(offset_dir, RAY_OFFSET_M));
-        self.clear(o, ut, dt, front) && (same || self.clear(o, ur, dr, front))
+        self.clear(o, leg.u, leg.d, front)
     }
 
-    /// Sums every scatterer's return for one virtual antenna. Specular terms go to `spec`
-    /// (scaled by 1/λ_t afterwards), the others to `other`. Returns the number of contributions.
-    fn antenna(
+    /// Sums every scatterer's return for one raster position: one TX and the RX antennas that
+    /// share it, so the TX leg (culling, geometry, shadow ray) is worked out once. Specular
+    /// terms go to `spec[k]` (scaled by 1/λ_t afterwards), the others to `other[k]`. Returns
+    /// the number of contributions.
+    fn position(
         &self,
         tx: [f32; 3],
-        rx: [f32; 3],
-        spec: &mut ToneAccumulator,
-        other: &mut ToneAccumulator,
+        rxs: &[[f32; 3]],
+        spec: &mut [ToneAccumulator],
+        other: &mut [ToneAccumulator],
     ) -> u64 {
-        let same = tx == rx;
-        let mid = scale(add(tx, rx), 0.5);
-        let half_sep = dot(sub(tx, rx), sub(tx, rx)).sqrt() / 2.0;
         let s = self.s;
         let mut count = 0u64;
+        // Every antenna lies within `spread` of `centre`.
+        let mut centre = tx;
+        for rx in rxs {
+            centre = add(centre, *rx);
+        }
+        let centre = scale(centre, 1.0 / (rxs.len() + 1) as f32);
+        let spread = std::iter::once(&tx)
+            .chain(rxs)
+            .map(|a| dot(sub(*a, centre), sub(*a, centre)).sqrt())
+            .fold(0.0f32, f32::max);
+        let rx_leg = |p: [f32; 3], rx: [f32; 3], tx_leg: &Leg| {
+            if rx == tx { *tx_leg } else { self.leg(p, rx) }
+        };
 
         for ((c, &(cos_lim, sin_lim)), &own) in s
             .clusters
@@ -485,81 +507,98 @@ impl Ctx<'_> {
             .zip(&s.cluster_limit)
             .zip(&s.cluster_object)
         {
-            let (v, dist) = towards(c.centre, mid);
-            // Widen the cone by the cluster's angular radius and the TX–RX parallax.
-            let delta = 1.01 * (c.radius_m + half_sep) / dist;
+            let (v, dist) = towards(c.centre, centre);
+            // Widen the cone by the cluster's angular radius and the antennas' spread.
+            let delta = 1.01 * (c.radius_m + spread) / dist;
             let threshold = cos_lim * (1.0 - 0.5 * delta * delta) - sin_lim * delta;
             if sin_lim > 0.0 && dot(v, c.axis) < threshold {
                 continue;
             }
+            let faces = [(own, c.triangle, c.axis)];
             for i in c.first as usize..(c.first + c.count) as usize {
                 let p = s.spec.position[i];
                 let n = s.spec.normal[i];
-                let (ut, dt) = towards(p, tx);
-                let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
-                let (ct, cr) = (dot(n, ut), dot(n, ur));
-                if ct <= 0.0 || cr <= 0.0 {
+                let t = self.leg(p, tx);
+                let ct = dot(n, t.u);
+                if ct <= 0.0 {
                     continue;
                 }
-                let h = add(ut, ur);
-                let theta = (dot(n, h) / dot(h, h).sqrt()).min(1.0).acos();
-                let zone =
-                    fresnel_zone_rad(self.half_lambda0_m, c.curvature_per_m, 0.5 * (dt + dr));
-                let full = self.full_zones * zone;
-                let cutoff = (self.cutoff_zones * zone).min(MAX_WINDOW_RAD);
-                if theta >= cutoff {
-                    continue;
+                let mut tx_clear: Option<bool> = None;
+                for (k, &rx) in rxs.iter().enumerate() {
+                    let r = rx_leg(p, rx, &t);
+                    let cr = dot(n, r.u);
+                    if cr <= 0.0 {
+                        continue;
+                    }
+                    let h = add(t.u, r.u);
+                    let theta = (dot(n, h) / dot(h, h).sqrt()).min(1.0).acos();
+                    let zone =
+                        fresnel_zone_rad(self.half_lambda0_m, c.curvature_per_m, 0.5 * (t.d + r.d));
+                    let full = self.full_zones * zone;
+                    let cutoff = (self.cutoff_zones * zone).min(MAX_WINDOW_RAD);
+                    if theta >= cutoff {
+                        continue;
+                    }
+                    let w = if theta <= full {
+                        1.0
+                    } else {
+                        0.5 * (1.0 + (PI * (theta - full) / (cutoff - full)).cos())
+                    };
+                    let amp =
+                        s.spec_weight[i] * 0.5 * (ct + cr) * w * t.factor * r.factor / (t.d * r.d);
+                    if amp == 0.0 {
+                        continue;
+                    }
+                    if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, n, &t, &faces)) {
+                        break;
+                    }
+                    if rx != tx && !self.leg_clear(p, n, &r, &faces) {
+                        continue;
+                    }
+                    spec[k].add(Complex32::new(0.0, -amp), path_m(&t, &r));
+                    count += 1;
                 }
-                let w = if theta <= full {
-                    1.0
-                } else {
-                    0.5 * (1.0 + (PI * (theta - full) / (cutoff - full)).cos())
-                };
-                let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-                let amp = s.spec_weight[i] * 0.5 * (ct + cr) * w * f / (dt * dr);
-                let faces = [(own, c.triangle, c.axis)];
-                if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, &faces) {
-                    continue;
-                }
-                spec.add(
-                    Complex32::new(0.0, -amp),
-                    f64::from(dt) + f64::from(dr) + f64::from(extra),
-                );
-                count += 1;
             }
         }
 
         for i in 0..s.diff.len() {
             let p = s.diff.position[i];
             let n = s.diff.normal[i];
-            let (ut, dt) = towards(p, tx);
-            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
-            let (ct, cr) = (dot(n, ut), dot(n, ur));
-            if ct <= 0.0 || cr <= 0.0 {
+            let t = self.leg(p, tx);
+            let ct = dot(n, t.u);
+            if ct <= 0.0 {
                 continue;
             }
-            // Specular direction of the incident ray, then the lobe around it.
-            let specular = sub(scale(n, 2.0 * ct), ut);
-            let lobe = (0.5 * (1.0 + dot(specular, ur)))
-                .max(0.0)
-                .powf(s.diff_half_alpha[i]);
-            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-            let amp = s.diff_weight[i] * ct.sqrt() * lobe * f / (dt * dr);
+            // Specular direction of the incident ray; the lobe lies around it.
+            let specular = sub(scale(n, 2.0 * ct), t.u);
             let faces = [(s.diff_object[i], s.diff.triangle[i], s.diff.face_normal[i])];
-            if amp == 0.0 || !self.visible(p, n, (ut, dt), (ur, dr), same, &faces) {
-                continue;
+            let mut tx_clear: Option<bool> = None;
+            for (k, &rx) in rxs.iter().enumerate() {
+                let r = rx_leg(p, rx, &t);
+                if dot(n, r.u) <= 0.0 {
+                    continue;
+                }
+                let lobe = (0.5 * (1.0 + dot(specular, r.u)))
+                    .max(0.0)
+                    .powf(s.diff_half_alpha[i]);
+                let amp = s.diff_weight[i] * ct.sqrt() * lobe * t.factor * r.factor / (t.d * r.d);
+                if amp == 0.0 {
+                    continue;
+                }
+                if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, n, &t, &faces)) {
+                    break;
+                }
+                if rx != tx && !self.leg_clear(p, n, &r, &faces) {
+                    continue;
+                }
+                other[k].add(s.diff_phasor[i] * amp, path_m(&t, &r));
+                count += 1;
             }
-            other.add(
-                s.diff_phasor[i] * amp,
-                f64::from(dt) + f64::from(dr) + f64::from(extra),
-            );
-            count += 1;
         }
 
         for ((e, &weight), &own) in s.edges.iter().zip(&s.edge_weight).zip(&s.edge_object) {
             let p = e.position;
-            let (ut, dt) = towards(p, tx);
-            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
+            let rim = e.n1 == e.n2;
             let outside = |u: [f32; 3]| {
                 let (a, b) = (dot(e.n1, u), dot(e.n2, u));
                 if e.convex {
@@ -568,12 +607,12 @@ impl Ctx<'_> {
                     a > 0.0 && b > 0.0
                 }
             };
-            let rim = e.n1 == e.n2;
-            if !(rim || (outside(ut) && outside(ur))) {
+            let t = self.leg(p, tx);
+            if !(rim || outside(t.u)) {
                 continue;
             }
             let offset_dir = if rim {
-                if dot(e.n1, ut) >= 0.0 {
+                if dot(e.n1, t.u) >= 0.0 {
                     e.n1
                 } else {
                     scale(e.n1, -1.0)
@@ -582,32 +621,51 @@ impl Ctx<'_> {
                 let m = add(e.n1, e.n2);
                 scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
             };
-            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-            let amp = weight * f / (dt * dr);
             let faces = [(own, e.faces[0], e.n1), (own, e.faces[1], e.n2)];
-            if amp == 0.0 || !self.visible(p, offset_dir, (ut, dt), (ur, dr), same, &faces) {
-                continue;
+            let mut tx_clear: Option<bool> = None;
+            for (k, &rx) in rxs.iter().enumerate() {
+                let r = rx_leg(p, rx, &t);
+                if !(rim || outside(r.u)) {
+                    continue;
+                }
+                let amp = weight * t.factor * r.factor / (t.d * r.d);
+                if amp == 0.0 {
+                    continue;
+                }
+                if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, offset_dir, &t, &faces)) {
+                    break;
+                }
+                if rx != tx && !self.leg_clear(p, offset_dir, &r, &faces) {
+                    continue;
+                }
+                other[k].add(Complex32::new(amp, 0.0), path_m(&t, &r));
+                count += 1;
             }
-            other.add(
-                Complex32::new(amp, 0.0),
-                f64::from(dt) + f64::from(dr) + f64::from(extra),
-            );
-            count += 1;
         }
 
         for &(p, a) in &s.points {
-            let (ut, dt) = towards(p, tx);
-            let (ur, dr) = if same { (ut, dt) } else { towards(p, rx) };
-            let (f, extra) = self.path_factors(p, tx, rx, ut, ur);
-            if !self.visible(p, [0.0; 3], (ut, dt), (ur, dr), same, &[]) {
+            let t = self.leg(p, tx);
+            if !self.leg_clear(p, [0.0; 3], &t, &[]) {
                 continue;
             }
-            other.add(
-                Complex32::new(a * f / (dt * dr), 0.0),
-                f64::from(dt) + f64::from(dr) + f64::from(extra),
-            );
-            count += 1;
+            for (k, &rx) in rxs.iter().enumerate() {
+                let r = rx_leg(p, rx, &t);
+                if rx != tx && !self.leg_clear(p, [0.0; 3], &r, &[]) {
+                    continue;
+                }
+                other[k].add(
+                    Complex32::new(a * t.factor * r.factor / (t.d * r.d), 0.0),
+                    path_m(&t, &r),
+                );
+                count += 1;
+            }
         }
         count
     }
+}
+
+/// Round-trip path of a TX leg and an RX leg, with the sheet's extra path, metres.
+#[inline]
+fn path_m(t: &Leg, r: &Leg) -> f64 {
+    f64::from(t.d) + f64::from(r.d) + f64::from(t.extra_m) + f64::from(r.extra_m)
 }
