@@ -45,6 +45,10 @@ enum Command {
         /// Write the received power of every antenna over the aperture as a PNG.
         #[arg(long)]
         png: Option<PathBuf>,
+        /// Draw only echoes whose one-way range (range offset removed) lies in MIN,MAX metres,
+        /// e.g. 0.30,0.45 to look past a cardboard sheet.
+        #[arg(long, value_name = "MIN,MAX", allow_hyphen_values = true)]
+        gate: Option<String>,
     },
     /// Parse an IWR1443 CLI profile (.cfg) and print its register codes and derived figures.
     Profile {
@@ -70,7 +74,11 @@ fn main() -> std::process::ExitCode {
         Command::Simulate { scene, out, force } => {
             cli::simulate::run(&scene, &out, force, args.quiet)
         }
-        Command::Inspect { capture, png } => cli::inspect::run(&capture, png.as_deref()),
+        Command::Inspect { capture, png, gate } => gate
+            .as_deref()
+            .map(cli::inspect::parse_gate)
+            .transpose()
+            .and_then(|gate| cli::inspect::run(&capture, png.as_deref(), gate)),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };
     match result {

@@ -110,6 +110,27 @@ fn simulate_then_inspect_writes_a_capture_truth_and_a_picture() {
             .starts_with(b"\x89PNG\r\n\x1a\n")
     );
 
+    // A range gate around the cylinder (one-way 0.36–0.40 m below the aperture).
+    let o = mmnormd(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+        "--gate",
+        "0.3,0.45",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("strongest echo between 0.3 m and 0.45 m"), "{t}");
+    for bad in ["0.45,0.3", "x,1", "-1,2", "0.3"] {
+        let o = mmnormd(&["inspect", out.to_str().unwrap(), "--gate", bad]);
+        assert!(
+            !o.status.success() && text(&o).contains("--gate"),
+            "{bad}: {}",
+            text(&o)
+        );
+    }
+
     // A second run into the same directory needs --force.
     let o = simulate(&scene, &out);
     assert!(!o.status.success());

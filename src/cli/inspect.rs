@@ -1,15 +1,30 @@
 use std::path::Path;
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use mmnormd::capture::{read_capture_dir, truth_files};
 use mmnormd::preview::ScalarImage;
 use num_complex::Complex32;
+use rayon::prelude::*;
 use rustfft::FftPlanner;
 
 /// Largest side of the aperture picture, pixels.
 const MAX_SIDE: usize = 320;
 
-pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
+/// Parses `--gate MIN,MAX` (one-way range in metres).
+pub fn parse_gate(text: &str) -> Result<(f64, f64)> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let parsed: Vec<f64> = parts.iter().filter_map(|p| p.parse().ok()).collect();
+    match parsed.as_slice() {
+        [lo, hi]
+            if parts.len() == 2 && lo.is_finite() && hi.is_finite() && *lo >= 0.0 && lo < hi =>
+        {
+            Ok((*lo, *hi))
+        }
+        _ => bail!("--gate {text:?}: expected MIN,MAX in metres with 0 ≤ MIN < MAX"),
+    }
+}
+
+pub fn run(dir: &Path, png: Option<&Path>, gate: Option<(f64, f64)>) -> Result<()> {
     let c = read_capture_dir(dir)?;
     let n = c.antennas();
     let t = c.plan.samples_per_chirp;
@@ -28,11 +43,55 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
             )
         },
     );
+    // Range-FFT bins (4× zero padding) that fall inside the gate, by one-way range.
+    let pad = 4 * t;
+    let round_trip_of_bin = |k: usize| {
+        k as f64 / pad as f64 * mmnormd::SPEED_OF_LIGHT_M_PER_S / c.plan.frequency_step_hz.abs()
+    };
+    let gate_bins: Option<Vec<usize>> = gate.map(|(lo, hi)| {
+        (0..pad / 2)
+            .filter(|&k| {
+                let one_way = (round_trip_of_bin(k) - c.range_offset_m) / 2.0;
+                (lo..=hi).contains(&one_way)
+            })
+            .collect()
+    });
+    if let (Some(bins), Some((lo, hi))) = (&gate_bins, gate)
+        && bins.is_empty()
+    {
+        bail!("--gate {lo},{hi}: no range bin of this capture falls between {lo} m and {hi} m");
+    }
+    let hann: Vec<f32> = (0..t)
+        .map(|k| (0.5 - 0.5 * (std::f64::consts::TAU * k as f64 / t as f64).cos()) as f32)
+        .collect();
     let power_db: Vec<f32> = (0..n)
-        .map(|i| {
-            let p: f32 = c.chirp(i).iter().map(Complex32::norm_sqr).sum::<f32>() / t as f32;
-            10.0 * p.max(1e-30).log10()
-        })
+        .into_par_iter()
+        .map_init(
+            || {
+                let fft = FftPlanner::<f32>::new().plan_fft_forward(pad);
+                (fft, vec![Complex32::new(0.0, 0.0); pad])
+            },
+            |(fft, buf), i| match &gate_bins {
+                // Mean power per sample.
+                None => {
+                    let p: f32 = c.chirp(i).iter().map(Complex32::norm_sqr).sum::<f32>() / t as f32;
+                    10.0 * p.max(1e-30).log10()
+                }
+                // Strongest echo amplitude inside the gate (per-sample units). A Hann window
+                // keeps strong echoes outside the gate (a cardboard sheet) from leaking in
+                // through range sidelobes; its coherent gain of ½ is divided out.
+                Some(bins) => {
+                    buf.fill(Complex32::new(0.0, 0.0));
+                    for (k, (b, s)) in buf.iter_mut().zip(c.chirp(i)).enumerate() {
+                        *b = s * hann[k];
+                    }
+                    fft.process(buf);
+                    let a = bins.iter().map(|&k| buf[k].norm()).fold(0.0f32, f32::max)
+                        / (0.5 * t as f32);
+                    20.0 * a.max(1e-15).log10()
+                }
+            },
+        )
         .collect();
     let peak_db = power_db.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let mut sorted = power_db.clone();
@@ -40,7 +99,6 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
     let median_db = sorted[sorted.len() / 2];
 
     // Mean range profile: |FFT| of each chirp, 4× zero-padded, averaged.
-    let pad = 4 * t;
     let fft = FftPlanner::<f32>::new().plan_fft_forward(pad);
     let mut profile = vec![0f32; pad];
     let mut buf = vec![Complex32::new(0.0, 0.0); pad];
@@ -63,8 +121,7 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
                 |b, (k, &v)| if v > b.1 { (k, v) } else { b },
             );
     // With h ∝ exp(+j2π·f_t·d/c) the FFT peaks at bin d·step·T/c (one-way range d/2).
-    let round_trip_m = peak_bin as f64 / pad as f64 * mmnormd::SPEED_OF_LIGHT_M_PER_S
-        / c.plan.frequency_step_hz.abs();
+    let round_trip_m = round_trip_of_bin(peak_bin);
     println!("capture {}", dir.display());
     println!("  description    {}", c.description);
     println!("  antennas       {n} × {t} samples");
@@ -80,7 +137,12 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
         "  aperture       x {:.4}…{:.4} m, y {:.4}…{:.4} m, z {:.4}…{:.4} m (virtual centres)",
         lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
     );
-    println!("  power          peak {peak_db:.1} dB, median {median_db:.1} dB (per sample)");
+    let measure = if gate.is_some() {
+        "gated echo"
+    } else {
+        "power"
+    };
+    println!("  {measure:<14} peak {peak_db:.1} dB, median {median_db:.1} dB (per sample)");
     println!(
         "  strongest echo round trip {:.3} m incl. offset → one-way {:.3} m without it",
         round_trip_m,
@@ -101,8 +163,12 @@ pub fn run(dir: &Path, png: Option<&Path>) -> Result<()> {
     if let Some(path) = png {
         let image = aperture_image(&centres, &power_db, lo, hi);
         image.write_png(path, peak_db - 40.0, peak_db, 2)?;
+        let what = match gate {
+            None => "received power".to_string(),
+            Some((lo, hi)) => format!("strongest echo between {lo} m and {hi} m one way"),
+        };
         println!(
-            "  wrote {} ({}×{} cells, colour = received power, top 40 dB; +x right, +y up)",
+            "  wrote {} ({}×{} cells, colour = {what}, top 40 dB; +x right, +y up)",
             path.display(),
             image.width,
             image.height
