@@ -504,7 +504,7 @@ fn resolve_radar(
         }
         _ => Err(c.fail(
             "radar",
-            "…",
+            r,
             "give either `profile` or all of start_frequency_hz, frequency_step_hz and samples_per_chirp",
         )),
     }
@@ -609,22 +609,26 @@ fn resolve_object(
             ));
         }
     };
+    let shown = |v: &dyn std::fmt::Debug| format!("{v:?}");
     let given = [
-        ("size_m", o.size_m.is_some()),
-        ("radius_m", o.radius_m.is_some()),
-        ("length_m", o.length_m.is_some()),
-        ("path", o.path.is_some()),
-        ("scale", o.scale.is_some()),
-        ("recenter", o.recenter.is_some()),
-        ("rcs_m2", o.rcs_m2.is_some()),
+        ("size_m", o.size_m.as_ref().map(|v| shown(v))),
+        ("radius_m", o.radius_m.map(|v| shown(&v))),
+        ("length_m", o.length_m.map(|v| shown(&v))),
+        ("path", o.path.as_ref().map(|v| shown(v))),
+        ("scale", o.scale.map(|v| shown(&v))),
+        ("recenter", o.recenter.map(|v| shown(&v))),
+        ("rcs_m2", o.rcs_m2.map(|v| shown(&v))),
     ];
-    for (key, present) in given {
-        if present && !allowed.contains(&key) {
-            return Err(c.fail(
-                &field(key),
-                "…",
-                &format!("does not apply to a {}", o.shape),
-            ));
+    for (key, value) in given {
+        if let Some(value) = value
+            && !allowed.contains(&key)
+        {
+            return Err(SceneError::Field {
+                path: c.path.to_path_buf(),
+                field: field(key),
+                value,
+                reason: format!("does not apply to a {}", o.shape),
+            });
         }
     }
     let required = |key: &str, v: Option<f64>| -> Result<f64, SceneError> {
