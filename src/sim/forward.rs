@@ -474,6 +474,29 @@ impl Ctx<'_> {
         self.clear(o, leg.u, leg.d, front)
     }
 
+    /// Whether a contribution of `amp` over the legs `(t, r, rx_is_tx)` is summed: `None`
+    /// when the TX leg is blocked (no RX of this position can see the scatterer), otherwise
+    /// whether this RX gets it. The TX leg's ray is cast once per scatterer and cached in
+    /// `tx_clear`.
+    #[inline]
+    fn admit(
+        &self,
+        amp: f32,
+        p: [f32; 3],
+        offset_dir: [f32; 3],
+        (t, r, rx_is_tx): (&Leg, &Leg, bool),
+        faces: &[(u16, u32, [f32; 3])],
+        tx_clear: &mut Option<bool>,
+    ) -> Option<bool> {
+        if amp == 0.0 {
+            return Some(false);
+        }
+        if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, offset_dir, t, faces)) {
+            return None;
+        }
+        Some(rx_is_tx || self.leg_clear(p, offset_dir, r, faces))
+    }
+
     /// Sums every scatterer's return for one raster position: one TX and the RX antennas that
     /// share it, so the TX leg (culling, geometry, shadow ray) is worked out once. Specular
     /// terms go to `spec[k]` (scaled by 1/λ_t afterwards), the others to `other[k]`. Returns
@@ -546,14 +569,10 @@ impl Ctx<'_> {
                     };
                     let amp =
                         s.spec_weight[i] * 0.5 * (ct + cr) * w * t.factor * r.factor / (t.d * r.d);
-                    if amp == 0.0 {
-                        continue;
-                    }
-                    if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, n, &t, &faces)) {
-                        break;
-                    }
-                    if rx != tx && !self.leg_clear(p, n, &r, &faces) {
-                        continue;
+                    match self.admit(amp, p, n, (&t, &r, rx == tx), &faces, &mut tx_clear) {
+                        None => break,
+                        Some(false) => continue,
+                        Some(true) => {}
                     }
                     spec[k].add(Complex32::new(0.0, -amp), path_m(&t, &r));
                     count += 1;
@@ -582,14 +601,10 @@ impl Ctx<'_> {
                     .max(0.0)
                     .powf(s.diff_half_alpha[i]);
                 let amp = s.diff_weight[i] * ct.sqrt() * lobe * t.factor * r.factor / (t.d * r.d);
-                if amp == 0.0 {
-                    continue;
-                }
-                if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, n, &t, &faces)) {
-                    break;
-                }
-                if rx != tx && !self.leg_clear(p, n, &r, &faces) {
-                    continue;
+                match self.admit(amp, p, n, (&t, &r, rx == tx), &faces, &mut tx_clear) {
+                    None => break,
+                    Some(false) => continue,
+                    Some(true) => {}
                 }
                 other[k].add(s.diff_phasor[i] * amp, path_m(&t, &r));
                 count += 1;
@@ -629,14 +644,17 @@ impl Ctx<'_> {
                     continue;
                 }
                 let amp = weight * t.factor * r.factor / (t.d * r.d);
-                if amp == 0.0 {
-                    continue;
-                }
-                if !*tx_clear.get_or_insert_with(|| self.leg_clear(p, offset_dir, &t, &faces)) {
-                    break;
-                }
-                if rx != tx && !self.leg_clear(p, offset_dir, &r, &faces) {
-                    continue;
+                match self.admit(
+                    amp,
+                    p,
+                    offset_dir,
+                    (&t, &r, rx == tx),
+                    &faces,
+                    &mut tx_clear,
+                ) {
+                    None => break,
+                    Some(false) => continue,
+                    Some(true) => {}
                 }
                 other[k].add(Complex32::new(amp, 0.0), path_m(&t, &r));
                 count += 1;
