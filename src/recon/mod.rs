@@ -1,0 +1,8 @@
+//! The mmNorm reconstruction (paper §2–§4).
+//!
+//! This module will own everything between a [`crate::capture::Capture`] and a point cloud:
+//! imaging, the normal field, masks and components, the RSDF and the isosurface search. It
+//! reads captures and never reaches back into acquisition or simulation. So far it holds the
+//! binary-mask threshold ([`threshold`]); the other stages arrive with the reconstruction issue.
+
+pub mod threshold;
