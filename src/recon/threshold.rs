@@ -65,7 +65,8 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
         }
         t_curr = t_next;
         let mean_fore = mean(image.iter().copied().filter(|&v| v > t_curr));
-        let mean_back = mean(image.iter().copied().filter(|&v| !(v > t_curr)));
+        // The values are finite here, so `<=` is the exact complement of `>`.
+        let mean_back = mean(image.iter().copied().filter(|&v| v <= t_curr));
         if mean_back == 0.0 {
             break;
         }
