@@ -13,7 +13,7 @@
 //! - [`geometry`]: triangle meshes, their file formats (STL, OBJ, PLY), primitives and a BVH.
 //! - [`signal`]: the FMCW tone synthesis and the seeded noise generator shared by every model.
 //! - [`sim`]: scenes and the physical-optics forward simulator that turns a scene into a capture.
-//! - [`recon`]: the mmNorm reconstruction (so far: the Li threshold of the binary mask).
+//! - [`recon`]: the mmNorm reconstruction (so far: the mask's Li threshold and its 6-connected components).
 //! - [`preview`]: PNG pictures for people.
 //! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.
 //!

@@ -1,0 +1,131 @@
+//! Connected components of a voxel mask with 6-connectivity (face neighbours), as mmNorm labels
+//! its high-power regions before integrating one RSDF per component (§3.2; mmnorm-reference §4.2
+//! uses `cc3d` with connectivity 6).
+//!
+//! Grids are C-ordered (x, y, z): flat index = (x·NY + y)·NZ + z.
+
+/// Labelled components: `labels[v]` is 0 for background or a dropped component, else 1…n in
+/// order of each component's first voxel in flat order; `sizes[k - 1]` is component k's voxel
+/// count.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Components {
+    pub labels: Vec<u32>,
+    pub sizes: Vec<usize>,
+}
+
+/// Labels the 6-connected components of `mask` (shape `dims` = [NX, NY, NZ]) and keeps those
+/// with at least `min_voxels` voxels; smaller ones become background.
+///
+/// # Panics
+/// If `mask.len()` is not NX·NY·NZ (a caller's bug, not an input error).
+pub fn label_6(mask: &[bool], dims: [usize; 3], min_voxels: usize) -> Components {
+    let [nx, ny, nz] = dims;
+    assert_eq!(
+        mask.len(),
+        nx * ny * nz,
+        "mask does not match its dimensions"
+    );
+    let mut labels = vec![0u32; mask.len()];
+    let mut sizes = Vec::new();
+    let mut stack = Vec::new();
+    let mut members = Vec::new();
+    for seed in 0..mask.len() {
+        if !mask[seed] || labels[seed] != 0 {
+            continue;
+        }
+        let label = sizes.len() as u32 + 1;
+        labels[seed] = label;
+        stack.push(seed);
+        members.clear();
+        while let Some(v) = stack.pop() {
+            members.push(v);
+            let (x, y, z) = (v / (ny * nz), (v / nz) % ny, v % nz);
+            let mut visit = |w: usize| {
+                if mask[w] && labels[w] == 0 {
+                    labels[w] = label;
+                    stack.push(w);
+                }
+            };
+            if x > 0 {
+                visit(v - ny * nz);
+            }
+            if x + 1 < nx {
+                visit(v + ny * nz);
+            }
+            if y > 0 {
+                visit(v - nz);
+            }
+            if y + 1 < ny {
+                visit(v + nz);
+            }
+            if z > 0 {
+                visit(v - 1);
+            }
+            if z + 1 < nz {
+                visit(v + 1);
+            }
+        }
+        if members.len() >= min_voxels {
+            sizes.push(members.len());
+        } else {
+            // Too small: clear it; `u32::MAX` keeps it from being revisited as a new seed.
+            for &v in &members {
+                labels[v] = u32::MAX;
+            }
+        }
+    }
+    for l in &mut labels {
+        if *l == u32::MAX {
+            *l = 0;
+        }
+    }
+    Components { labels, sizes }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(dims: [usize; 3], on: &[[usize; 3]]) -> Vec<bool> {
+        let mut m = vec![false; dims[0] * dims[1] * dims[2]];
+        for p in on {
+            m[(p[0] * dims[1] + p[1]) * dims[2] + p[2]] = true;
+        }
+        m
+    }
+
+    #[test]
+    fn faces_connect_edges_and_corners_do_not() {
+        let dims = [3, 3, 3];
+        // A face pair, an edge-diagonal voxel and a corner-diagonal voxel.
+        let m = grid(dims, &[[0, 0, 0], [0, 0, 1], [1, 1, 1], [2, 2, 2]]);
+        let c = label_6(&m, dims, 1);
+        assert_eq!(c.sizes, vec![2, 1, 1]);
+        assert_eq!(c.labels[0], 1);
+        assert_eq!(c.labels[1], 1);
+        assert_eq!(c.labels[(3 + 1) * 3 + 1], 2);
+        assert_eq!(c.labels[26], 3);
+    }
+
+    #[test]
+    fn small_components_are_dropped_and_labels_stay_dense() {
+        let dims = [4, 4, 1];
+        let mut on = vec![[0, 0, 0]];
+        on.extend([[2, 0, 0], [2, 1, 0], [2, 2, 0], [3, 2, 0]]);
+        on.extend([[0, 3, 0], [1, 3, 0]]);
+        let c = label_6(&grid(dims, &on), dims, 2);
+        assert_eq!(c.sizes, vec![2, 4]);
+        assert_eq!(c.labels[0], 0, "the single voxel is dropped");
+        assert_eq!(c.labels[3], 1);
+        assert_eq!(c.labels[8], 2, "voxel (2, 0, 0)");
+        assert_eq!(c.labels.iter().filter(|&&l| l != 0).count(), 6);
+    }
+
+    #[test]
+    fn a_solid_box_is_one_component() {
+        let dims = [5, 6, 7];
+        let c = label_6(&vec![true; 210], dims, 10);
+        assert_eq!(c.sizes, vec![210]);
+        assert!(c.labels.iter().all(|&l| l == 1));
+    }
+}
