@@ -3,9 +3,10 @@
 //! This module will own everything between a [`crate::capture::Capture`] and a point cloud:
 //! imaging, the normal field, masks and components, the RSDF and the isosurface search. It
 //! reads captures and never reaches back into acquisition or simulation. So far it holds the
-//! binary-mask threshold ([`threshold`]), 6-connected component labelling ([`components`]) and
-//! RSDF integration ([`rsdf`]); the other stages arrive with the reconstruction issue.
+//! image S(v) ([`image`]), the binary-mask threshold ([`threshold`]), 6-connected component
+//! labelling ([`components`]) and RSDF integration ([`rsdf`]); the other stages arrive with the reconstruction issue.
 
 pub mod components;
+pub mod image;
 pub mod rsdf;
 pub mod threshold;
