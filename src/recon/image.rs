@@ -136,22 +136,72 @@ impl RangeProfiles {
     }
 }
 
+/// The per-antenna matched filter I_j(v) of Eq. 4 in f32, from cropped range profiles.
+pub struct MatchedFilter<'a> {
+    profiles: &'a RangeProfiles,
+    tx: Vec<[f32; 3]>,
+    rx: Vec<[f32; 3]>,
+    turns_per_m: f32,
+    bins_per_m: f32,
+    offset_m: f32,
+    first: f32,
+    last: f32,
+}
+
+impl<'a> MatchedFilter<'a> {
+    pub fn new(capture: &Capture, profiles: &'a RangeProfiles) -> MatchedFilter<'a> {
+        let plan = capture.plan;
+        MatchedFilter {
+            profiles,
+            tx: capture.tx_m.iter().map(|p| p.map(|c| c as f32)).collect(),
+            rx: capture.rx_m.iter().map(|p| p.map(|c| c as f32)).collect(),
+            turns_per_m: (plan.start_frequency_hz / SPEED_OF_LIGHT_M_PER_S) as f32,
+            bins_per_m: (plan.frequency_step_hz * profiles.fft_len as f64 / SPEED_OF_LIGHT_M_PER_S)
+                as f32,
+            offset_m: capture.range_offset_m as f32,
+            first: profiles.first_bin as f32,
+            last: (profiles.bins - 1) as f32,
+        }
+    }
+
+    /// Number of antennas.
+    pub fn antennas(&self) -> usize {
+        self.tx.len()
+    }
+
+    /// Virtual phase centre (TX + RX)/2 of antenna `a`.
+    pub fn centre(&self, a: usize) -> [f32; 3] {
+        [0, 1, 2].map(|k| 0.5 * (self.tx[a][k] + self.rx[a][k]))
+    }
+
+    /// I_a(v): the interpolated range profile times exp(−j2π f_0 D/c).
+    #[inline]
+    pub fn response(&self, a: usize, v: [f32; 3]) -> Complex32 {
+        let dist = |p: [f32; 3]| {
+            let d = [p[0] - v[0], p[1] - v[1], p[2] - v[2]];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        };
+        let bins = self.profiles.bins;
+        let round_trip = dist(self.tx[a]) + dist(self.rx[a]) + self.offset_m;
+        let pos = (round_trip * self.bins_per_m - self.first).clamp(0.0, self.last);
+        let k0 = (pos as usize).min(bins.saturating_sub(2));
+        let frac = pos - k0 as f32;
+        let row = &self.profiles.data[a * bins..(a + 1) * bins];
+        let x = row[k0] * (1.0 - frac) + row[(k0 + 1).min(bins - 1)] * frac;
+        let turns = (round_trip * self.turns_per_m).fract();
+        let (s, c) = (std::f32::consts::TAU * turns).sin_cos();
+        x * Complex32::new(c, -s)
+    }
+}
+
 /// S(v) for every voxel of `grid` (C order), by interpolated backprojection (f32).
 pub fn backproject(
     capture: &Capture,
     grid: &VoxelGrid,
     profiles: &RangeProfiles,
 ) -> Vec<Complex32> {
-    let n = capture.antennas();
-    let plan = capture.plan;
-    let turns_per_m = (plan.start_frequency_hz / SPEED_OF_LIGHT_M_PER_S) as f32;
-    let bins_per_m =
-        (plan.frequency_step_hz * profiles.fft_len as f64 / SPEED_OF_LIGHT_M_PER_S) as f32;
-    let offset = capture.range_offset_m as f32;
-    let first = profiles.first_bin as f32;
-    let last = (profiles.bins - 1) as f32;
-    let tx: Vec<[f32; 3]> = capture.tx_m.iter().map(|p| p.map(|c| c as f32)).collect();
-    let rx: Vec<[f32; 3]> = capture.rx_m.iter().map(|p| p.map(|c| c as f32)).collect();
+    let filter = MatchedFilter::new(capture, profiles);
+    let n = filter.antennas();
     let [_, ny, nz] = grid.dims;
     let mut image = vec![Complex32::new(0.0, 0.0); grid.len()];
     let scale = 1.0 / n.max(1) as f32;
@@ -162,23 +212,7 @@ pub fn backproject(
             for j in 0..ny {
                 for k in 0..nz {
                     let v = grid.centre(i, j, k).map(|c| c as f32);
-                    let mut acc = Complex32::new(0.0, 0.0);
-                    for a in 0..n {
-                        let dist = |p: [f32; 3]| {
-                            let d = [p[0] - v[0], p[1] - v[1], p[2] - v[2]];
-                            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-                        };
-                        let round_trip = dist(tx[a]) + dist(rx[a]) + offset;
-                        let pos = (round_trip * bins_per_m - first).clamp(0.0, last);
-                        let k0 = (pos as usize).min(profiles.bins.saturating_sub(2));
-                        let frac = pos - k0 as f32;
-                        let row = &profiles.data[a * profiles.bins..(a + 1) * profiles.bins];
-                        let x =
-                            row[k0] * (1.0 - frac) + row[(k0 + 1).min(profiles.bins - 1)] * frac;
-                        let turns = (round_trip * turns_per_m).fract();
-                        let (s, c) = (std::f32::consts::TAU * turns).sin_cos();
-                        acc += x * Complex32::new(c, -s);
-                    }
+                    let acc: Complex32 = (0..n).map(|a| filter.response(a, v)).sum();
                     slab[j * nz + k] = acc * scale;
                 }
             }
