@@ -14,6 +14,7 @@
 //! - [`signal`]: the FMCW tone synthesis and the seeded noise generator shared by every model.
 //! - [`sim`]: scenes and the physical-optics forward simulator that turns a scene into a capture.
 //! - [`recon`]: the mmNorm reconstruction (so far: the mask's Li threshold and its 6-connected components).
+//! - [`eval`]: the paper's metrics (F-score, point, position and normal errors).
 //! - [`preview`]: PNG pictures for people.
 //! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.
 //!
@@ -21,6 +22,7 @@
 //! place that uses `anyhow`. Library modules return their own `thiserror` enums.
 
 pub mod capture;
+pub mod eval;
 pub mod geometry;
 pub mod preview;
 pub mod progress;
