@@ -50,6 +50,22 @@ enum Command {
         #[arg(long, value_name = "MIN,MAX", allow_hyphen_values = true)]
         gate: Option<String>,
     },
+    /// Score a point cloud against ground truth with the paper's metrics (§5).
+    Eval {
+        /// Reconstructed points: PLY with x y z (and nx ny nz for the normal metrics).
+        #[arg(long)]
+        points: PathBuf,
+        /// Ground truth: a mesh (.stl/.obj/.ply, scored as seen from above), a point cloud
+        /// (.ply without faces, or an (M,3) .npy), or a capture directory holding truth.
+        #[arg(long)]
+        truth: PathBuf,
+        /// F-score distance threshold, metres.
+        #[arg(long, default_value_t = 0.015)]
+        tau_m: f64,
+        /// Print one JSON object instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Parse an IWR1443 CLI profile (.cfg) and print its register codes and derived figures.
     Profile {
         /// The .cfg file.
@@ -79,6 +95,12 @@ fn main() -> std::process::ExitCode {
             .map(cli::inspect::parse_gate)
             .transpose()
             .and_then(|gate| cli::inspect::run(&capture, png.as_deref(), gate)),
+        Command::Eval {
+            points,
+            truth,
+            tau_m,
+            json,
+        } => cli::eval::run(&points, &truth, tau_m, json),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };
     match result {

@@ -190,3 +190,100 @@ fn every_example_scene_loads() {
     }
     assert!(n >= 4);
 }
+
+#[test]
+fn eval_scores_the_truth_as_perfect_and_separates_position_from_shape() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), SMALL);
+    let out = dir.path().join("cap");
+    assert!(simulate(&scene, &out).status.success());
+    let top = mmnormd::capture::dir::read_points_npy(&out.join("truth_top.npy")).unwrap();
+    let write_cloud = |name: &str, dz: f64| {
+        let col = |k: usize| {
+            top.iter()
+                .map(|p| p[k] + if k == 2 { dz } else { 0.0 })
+                .collect::<Vec<_>>()
+        };
+        let bytes = mmnormd::geometry::ply::encode(
+            &[
+                mmnormd::geometry::ply::Column::F64("x", col(0)),
+                mmnormd::geometry::ply::Column::F64("y", col(1)),
+                mmnormd::geometry::ply::Column::F64("z", col(2)),
+            ],
+            &[],
+        );
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    };
+    let json = |points: &Path| {
+        let o = mmnormd(&[
+            "eval",
+            "--points",
+            points.to_str().unwrap(),
+            "--truth",
+            out.to_str().unwrap(),
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    let same = json(&write_cloud("same.ply", 0.0));
+    for key in [
+        "f_score",
+        "precision",
+        "recall",
+        "f_score_raw",
+        "position_error_m",
+        "point_error_median_m",
+        "point_error_p90_m",
+        "rel_error_under_5pct",
+        "normal_cos_median",
+        "normal_cos_p25",
+        "points",
+        "truth_points",
+    ] {
+        assert!(same.get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(same["f_score"], 1.0);
+    assert_eq!(same["point_error_median_m"], 0.0);
+    assert!(
+        same["normal_cos_median"].is_null(),
+        "the cloud has no normals"
+    );
+    let lifted = json(&write_cloud("lifted.ply", 0.03));
+    assert_eq!(lifted["f_score"], 1.0);
+    assert!((lifted["position_error_m"].as_f64().unwrap() - 0.03).abs() < 1e-9);
+    assert!(lifted["f_score_raw"].as_f64().unwrap() < 0.5);
+
+    let o = mmnormd(&[
+        "eval",
+        "--points",
+        dir.path().join("none.ply").to_str().unwrap(),
+        "--truth",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && text(&o).contains("none.ply"));
+    let o = mmnormd(&[
+        "eval",
+        "--points",
+        dir.path().join("same.ply").to_str().unwrap(),
+        "--truth",
+        out.to_str().unwrap(),
+        "--tau-m",
+        "0",
+    ]);
+    assert!(!o.status.success() && text(&o).contains("--tau-m"));
+    let o = mmnormd(&[
+        "eval",
+        "--points",
+        dir.path().join("same.ply").to_str().unwrap(),
+        "--truth",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        text(&o).contains("F-score (τ = 1.5 cm)   1.0000"),
+        "{}",
+        text(&o)
+    );
+}

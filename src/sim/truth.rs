@@ -11,8 +11,13 @@ pub const TOP_GRID_M: f64 = 1e-3;
 /// Casts rays straight down on a `grid_m` lattice (cell centres at (k + ½)·grid_m) over the
 /// mesh's footprint and returns the first hit of each ray that hits.
 pub fn top_surface(mesh: &TriMesh, grid_m: f64) -> Vec<[f64; 3]> {
+    top_surface_with_normals(mesh, grid_m).0
+}
+
+/// [`top_surface`] with the unit normal of each hit triangle, turned to face up.
+pub fn top_surface_with_normals(mesh: &TriMesh, grid_m: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
     let Some((lo, hi)) = mesh.bounds() else {
-        return Vec::new();
+        return (Vec::new(), Vec::new());
     };
     let bvh = Bvh::build(mesh);
     let kx0 = (lo[0] / grid_m).floor() as i64;
@@ -33,10 +38,18 @@ pub fn top_surface(mesh: &TriMesh, grid_m: f64) -> Vec<[f64; 3]> {
                     [0.0, 0.0, -1.0],
                     depth,
                 )
-                .map(|h| [x, y, z_start - f64::from(h.t)])
+                .map(|h| {
+                    let [a, b, c] = mesh.corners(h.triangle as usize);
+                    let n = (b - a)
+                        .cross(&(c - a))
+                        .try_normalize(0.0)
+                        .unwrap_or_default();
+                    let n = if n.z < 0.0 { -n } else { n };
+                    ([x, y, z_start - f64::from(h.t)], [n.x, n.y, n.z])
+                })
             })
         })
-        .collect()
+        .unzip()
 }
 
 #[cfg(test)]
