@@ -256,31 +256,23 @@ fn eval_scores_the_truth_as_perfect_and_separates_position_from_shape() {
     assert!((lifted["position_error_m"].as_f64().unwrap() - 0.03).abs() < 1e-9);
     assert!(lifted["f_score_raw"].as_f64().unwrap() < 0.5);
 
-    let o = mmnormd(&[
-        "eval",
-        "--points",
-        dir.path().join("none.ply").to_str().unwrap(),
-        "--truth",
-        out.to_str().unwrap(),
-    ]);
+    let eval = |points: &str, extra: &[&str]| {
+        let points = dir.path().join(points);
+        let mut args = vec![
+            "eval",
+            "--points",
+            points.to_str().unwrap(),
+            "--truth",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        mmnormd(&args)
+    };
+    let o = eval("none.ply", &[]);
     assert!(!o.status.success() && text(&o).contains("none.ply"));
-    let o = mmnormd(&[
-        "eval",
-        "--points",
-        dir.path().join("same.ply").to_str().unwrap(),
-        "--truth",
-        out.to_str().unwrap(),
-        "--tau-m",
-        "0",
-    ]);
+    let o = eval("same.ply", &["--tau-m", "0"]);
     assert!(!o.status.success() && text(&o).contains("--tau-m"));
-    let o = mmnormd(&[
-        "eval",
-        "--points",
-        dir.path().join("same.ply").to_str().unwrap(),
-        "--truth",
-        out.to_str().unwrap(),
-    ]);
+    let o = eval("same.ply", &[]);
     assert!(
         text(&o).contains("F-score (τ = 1.5 cm)   1.0000"),
         "{}",
