@@ -50,6 +50,27 @@ impl VoxelGrid {
         ]
     }
 
+    /// Evaluates `f(flat index, voxel centre)` for every voxel in parallel (x-slabs), in C order.
+    pub fn par_map<T: Send + Clone>(
+        &self,
+        fill: T,
+        f: impl Fn(usize, [f32; 3]) -> T + Sync,
+    ) -> Vec<T> {
+        let [_, ny, nz] = self.dims;
+        let mut out = vec![fill; self.len()];
+        out.par_chunks_mut((ny * nz).max(1))
+            .enumerate()
+            .for_each(|(i, slab)| {
+                for j in 0..ny {
+                    for k in 0..nz {
+                        let v = self.centre(i, j, k).map(|c| c as f32);
+                        slab[j * nz + k] = f((i * ny + j) * nz + k, v);
+                    }
+                }
+            });
+        out
+    }
+
     /// The grid's corner voxel centres (min, max).
     fn extent(&self) -> ([f64; 3], [f64; 3]) {
         let [nx, ny, nz] = self.dims;
@@ -202,22 +223,11 @@ pub fn backproject(
 ) -> Vec<Complex32> {
     let filter = MatchedFilter::new(capture, profiles);
     let n = filter.antennas();
-    let [_, ny, nz] = grid.dims;
-    let mut image = vec![Complex32::new(0.0, 0.0); grid.len()];
     let scale = 1.0 / n.max(1) as f32;
-    image
-        .par_chunks_mut(ny * nz)
-        .enumerate()
-        .for_each(|(i, slab)| {
-            for j in 0..ny {
-                for k in 0..nz {
-                    let v = grid.centre(i, j, k).map(|c| c as f32);
-                    let acc: Complex32 = (0..n).map(|a| filter.response(a, v)).sum();
-                    slab[j * nz + k] = acc * scale;
-                }
-            }
-        });
-    image
+    grid.par_map(Complex32::new(0.0, 0.0), |_, v| {
+        let acc: Complex32 = (0..n).map(|a| filter.response(a, v)).sum();
+        acc * scale
+    })
 }
 
 /// Eq. 4–5 evaluated directly in f64: S(v) = mean_j Σ_t h_j[t]·exp(−j2π f_t D_j(v)/c).

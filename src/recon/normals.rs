@@ -9,7 +9,6 @@
 //! `min_fraction`·max|S| get a normal (the authors use 5 %); the others are NaN.
 
 use num_complex::Complex32;
-use rayon::prelude::*;
 
 use super::image::{MatchedFilter, RangeProfiles, VoxelGrid};
 use crate::capture::Capture;
@@ -36,44 +35,33 @@ pub fn normal_field(
     let centres: Vec<[f32; 3]> = (0..filter.antennas()).map(|a| filter.centre(a)).collect();
     let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
     let floor = min_fraction * peak;
-    let [_, ny, nz] = grid.dims;
-    let mut normals = vec![[f32::NAN; 3]; grid.len()];
-    normals
-        .par_chunks_mut(ny * nz)
-        .enumerate()
-        .for_each(|(i, slab)| {
-            for j in 0..ny {
-                for k in 0..nz {
-                    let s = image[(i * ny + j) * nz + k];
-                    let magnitude = s.norm();
-                    if magnitude.is_nan() || magnitude <= floor {
-                        continue;
-                    }
-                    let v = grid.centre(i, j, k).map(|c| c as f32);
-                    let mut sum = [0.0f32; 3];
-                    for (a, c) in centres.iter().enumerate() {
-                        let response = filter.response(a, v);
-                        // Eq. 6: projection of I_j onto S.
-                        let w = (response.re * s.re + response.im * s.im) / magnitude;
-                        let d = [c[0] - v[0], c[1] - v[1], c[2] - v[2]];
-                        let scale = match candidates {
-                            Candidates::Unit => {
-                                w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-                            }
-                            Candidates::Displacement => w,
-                        };
-                        for q in 0..3 {
-                            sum[q] += scale * d[q];
-                        }
-                    }
-                    let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
-                    if len > 0.0 {
-                        slab[j * nz + k] = sum.map(|c| c / len);
-                    }
-                }
+    grid.par_map([f32::NAN; 3], |index, v| {
+        let s = image[index];
+        let magnitude = s.norm();
+        if magnitude.is_nan() || magnitude <= floor {
+            return [f32::NAN; 3];
+        }
+        let mut sum = [0.0f32; 3];
+        for (a, c) in centres.iter().enumerate() {
+            let response = filter.response(a, v);
+            // Eq. 6: projection of I_j onto S.
+            let w = (response.re * s.re + response.im * s.im) / magnitude;
+            let d = [c[0] - v[0], c[1] - v[1], c[2] - v[2]];
+            let scale = match candidates {
+                Candidates::Unit => w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+                Candidates::Displacement => w,
+            };
+            for q in 0..3 {
+                sum[q] += scale * d[q];
             }
-        });
-    normals
+        }
+        let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
+        if len > 0.0 {
+            sum.map(|c| c / len)
+        } else {
+            [f32::NAN; 3]
+        }
+    })
 }
 
 #[cfg(test)]
