@@ -5,6 +5,7 @@
 //! for visibility: scenes are under a few metres, where f32 resolves 0.1 µm.
 
 use super::TriMesh;
+use super::vec3::{cross, dot, sub};
 
 const BINS: usize = 12;
 const MAX_LEAF: usize = 4;
@@ -43,23 +44,6 @@ pub struct Bvh {
     nodes: Vec<Node>,
     tris: Vec<Tri>,
     tri_ids: Vec<u32>,
-}
-
-#[inline]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[derive(Clone, Copy)]

@@ -9,6 +9,7 @@ mod io;
 mod occluders;
 pub mod ply;
 mod primitives;
+pub mod vec3;
 
 pub use bvh::{Bvh, Hit};
 pub use io::{MeshError, load_mesh};

@@ -43,6 +43,7 @@ use super::scene::{ObjectGeometry, Occluder, Scene};
 use super::surface::{self, Cluster, EdgeSample, Samples};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::{Capture, FrequencyPlan};
+use crate::geometry::vec3::{add, dot, scale, sub};
 use crate::geometry::{Bvh, FrontOccluders, LocalVisibility, TriMesh, ViewRegion};
 use crate::progress::Progress;
 use crate::signal::{Rng, ToneAccumulator};
@@ -126,23 +127,6 @@ const MAX_WINDOW_RAD: f32 = 1.45;
 #[inline]
 fn fresnel_zone_rad(half_lambda0_m: f32, kappa_per_m: f32, d_m: f32) -> f32 {
     (half_lambda0_m * (kappa_per_m + 1.0 / d_m)).sqrt()
-}
-
-#[inline]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-#[inline]
-fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 
 /// Direction and distance from `p` to `a`.
