@@ -5,6 +5,7 @@ mod cli;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
+use mmnormd::recon::config::{Isosurface, Method, VolumeSpec};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -66,6 +67,33 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Reconstruct a capture: mmNorm (default) or a baseline; writes points.ply, summary.json
+    /// and PNG previews.
+    Reconstruct {
+        /// Capture directory v1.
+        capture: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Reconstruction method [default: mmnorm, or recon.toml's].
+        #[arg(long, value_enum)]
+        method: Option<Method>,
+        /// How mmNorm picks each component's isosurface [default: optimized].
+        #[arg(long, value_enum)]
+        isosurface: Option<Isosurface>,
+        /// Parameters (TOML); every key is optional. See the README.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Voxel edge in millimetres [default: 1].
+        #[arg(long)]
+        voxel_mm: Option<f64>,
+        /// `auto`, or the box x0,x1,y0,y1,z0,z1 in metres (capture frame).
+        #[arg(long, allow_hyphen_values = true)]
+        volume: Option<VolumeSpec>,
+        /// Replace an existing reconstruction in OUT.
+        #[arg(long)]
+        force: bool,
+    },
     /// Parse an IWR1443 CLI profile (.cfg) and print its register codes and derived figures.
     Profile {
         /// The .cfg file.
@@ -101,6 +129,28 @@ fn main() -> std::process::ExitCode {
             tau_m,
             json,
         } => cli::eval::run(&points, &truth, tau_m, json),
+        Command::Reconstruct {
+            capture,
+            out,
+            method,
+            isosurface,
+            config,
+            voxel_mm,
+            volume,
+            force,
+        } => cli::reconstruct::run(
+            &capture,
+            &out,
+            config.as_deref(),
+            cli::reconstruct::Overrides {
+                method,
+                isosurface,
+                voxel_mm,
+                volume,
+            },
+            force,
+            args.quiet,
+        ),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };
     match result {

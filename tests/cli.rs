@@ -279,3 +279,127 @@ fn eval_scores_the_truth_as_perfect_and_separates_position_from_shape() {
         text(&o)
     );
 }
+
+const PLATE: &str = "[aperture]\nwidth_m = 0.10\nheight_m = 0.10\nspacing_m = 0.0025\nz_m = 0.2\nlayout = \"monostatic\"\n\
+[noise]\nsnr_db = 30.0\nseed = 6\n\
+[[object]]\nshape = \"plate\"\nsize_m = [0.06, 0.06]\n";
+
+#[test]
+fn reconstruct_writes_points_summary_and_previews_then_eval_scores_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), PLATE);
+    let cap = dir.path().join("cap");
+    assert!(simulate(&scene, &cap).status.success());
+    let out = dir.path().join("recon");
+    let args = |method: &str, out: &Path| {
+        vec![
+            "reconstruct".to_string(),
+            cap.to_str().unwrap().to_string(),
+            "--out".into(),
+            out.to_str().unwrap().to_string(),
+            "--method".into(),
+            method.into(),
+            "--voxel-mm".into(),
+            "2".into(),
+            "--volume".into(),
+            "-0.05,0.05,-0.05,0.05,-0.03,0.03".into(),
+        ]
+    };
+    let run = |a: Vec<String>| mmnormd(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run(args("mmnorm", &out));
+    assert!(o.status.success(), "{}", text(&o));
+    for f in [
+        "points.ply",
+        "summary.json",
+        "points_top.png",
+        "points_side.png",
+        "image_max_z.png",
+        "image_max_y.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let ply =
+        mmnormd::geometry::ply::parse(&std::fs::read(out.join("points.ply")).unwrap()).unwrap();
+    assert!(ply.normals.is_some());
+    assert!(ply.vertex_properties.iter().any(|(n, _)| n == "component"));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let result = &summary["result"];
+    assert_eq!(result["grid"]["dims"], serde_json::json!([51, 51, 31]));
+    assert_eq!(result["optimisation"]["seed"], 1);
+    assert_eq!(
+        result["optimisation"]["antennas"].as_array().unwrap().len(),
+        50
+    );
+    assert!(result["mask"]["attempts"][0]["threshold"].is_f64());
+    assert!(result["stage_s"].as_array().unwrap().len() >= 6);
+
+    // Refuses to overwrite without --force.
+    let again = run(args("mmnorm", &out));
+    assert!(!again.status.success());
+    assert!(text(&again).contains("--force"), "{}", text(&again));
+
+    let o = mmnormd(&[
+        "eval",
+        "--points",
+        out.join("points.ply").to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let m: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let f = m["f_score"].as_f64().unwrap();
+    println!("CLI plate: F {f}, normal cos {}", m["normal_cos_median"]);
+    assert!(f >= 0.95, "{m}");
+
+    // The backprojection baseline has no normals.
+    let bp = dir.path().join("bp");
+    let o = run(args("backprojection", &bp));
+    assert!(o.status.success(), "{}", text(&o));
+    let ply =
+        mmnormd::geometry::ply::parse(&std::fs::read(bp.join("points.ply")).unwrap()).unwrap();
+    assert!(ply.normals.is_none());
+    assert!(!ply.vertices_m.is_empty());
+}
+
+#[test]
+fn reconstruct_refuses_impossible_volumes_and_malformed_captures() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), SMALL);
+    let cap = dir.path().join("cap");
+    assert!(simulate(&scene, &cap).status.success());
+    let out = dir.path().join("recon");
+    let attempt = |extra: &[&str]| {
+        let mut a = vec![
+            "reconstruct",
+            cap.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        text(&mmnormd(&a))
+    };
+    let t = attempt(&["--volume", "-0.05,0.05,-0.05,0.05,0.3,0.5"]);
+    assert!(t.contains("z1 = 0.5") && t.contains("aperture"), "{t}");
+    let t = attempt(&["--volume", "-1,1,-1,1,-1,0.3"]);
+    assert!(t.contains("voxels") && t.contains("more than"), "{t}");
+    let t = attempt(&["--volume", "0,0.0005,-0.05,0.05,-0.05,0.05"]);
+    assert!(t.contains("along x"), "{t}");
+    let t = attempt(&["--volume", "0,1,2"]);
+    assert!(t.contains("six numbers"), "{t}");
+    let t = attempt(&["--voxel-mm", "0"]);
+    assert!(t.contains("voxel_m = 0"), "{t}");
+    let cfg = dir.path().join("recon.toml");
+    std::fs::write(&cfg, "[optimisation]\nantenas = 10\n").unwrap();
+    let t = attempt(&["--config", cfg.to_str().unwrap()]);
+    assert!(t.contains("recon.toml") && t.contains("antenas"), "{t}");
+    assert!(!out.join("points.ply").exists());
+
+    // A truncated sample file is named.
+    let samples = cap.join("samples.npy");
+    let bytes = std::fs::read(&samples).unwrap();
+    std::fs::write(&samples, &bytes[..bytes.len() / 2]).unwrap();
+    let t = attempt(&[]);
+    assert!(t.contains("samples.npy"), "{t}");
+}

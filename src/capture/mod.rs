@@ -115,6 +115,50 @@ impl Capture {
         &self.samples[i * t..(i + 1) * t]
     }
 
+    /// The capture restricted to the antennas at `indices` (in that order).
+    pub fn subset(&self, indices: &[usize]) -> Capture {
+        Capture {
+            plan: self.plan,
+            range_offset_m: self.range_offset_m,
+            tx_m: indices.iter().map(|&i| self.tx_m[i]).collect(),
+            rx_m: indices.iter().map(|&i| self.rx_m[i]).collect(),
+            samples: indices
+                .iter()
+                .flat_map(|&i| self.chirp(i).iter().copied())
+                .collect(),
+            description: self.description.clone(),
+            extra: serde_json::Map::new(),
+        }
+    }
+
+    /// The capture restricted to samples `first..first + len` of every chirp: a sub-band that
+    /// starts at `f_first` with the same step.
+    pub fn sub_band(&self, first: usize, len: usize) -> Capture {
+        let mut plan = self.plan;
+        plan.start_frequency_hz = self.plan.frequency_hz(first);
+        plan.samples_per_chirp = len;
+        Capture {
+            plan,
+            range_offset_m: self.range_offset_m,
+            tx_m: self.tx_m.clone(),
+            rx_m: self.rx_m.clone(),
+            samples: (0..self.antennas())
+                .flat_map(|a| self.chirp(a)[first..first + len].iter().copied())
+                .collect(),
+            description: self.description.clone(),
+            extra: serde_json::Map::new(),
+        }
+    }
+
+    /// Virtual phase centre (TX + RX)/2 of every antenna.
+    pub fn centres_m(&self) -> Vec<[f64; 3]> {
+        self.tx_m
+            .iter()
+            .zip(&self.rx_m)
+            .map(|(t, r)| [0, 1, 2].map(|k| 0.5 * (t[k] + r[k])))
+            .collect()
+    }
+
     /// Checks shapes and finiteness; the first problem found is reported with its index.
     pub fn validate(&self) -> Result<(), InvalidCapture> {
         self.plan.validate().map_err(InvalidCapture)?;

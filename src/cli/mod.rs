@@ -4,4 +4,5 @@
 pub mod eval;
 pub mod inspect;
 pub mod profile;
+pub mod reconstruct;
 pub mod simulate;

@@ -1,13 +1,31 @@
-//! The mmNorm reconstruction (paper §2–§4).
+//! The mmNorm reconstruction (paper §2–§4) and its baselines (§5).
 //!
-//! This module will own everything between a [`crate::capture::Capture`] and a point cloud:
-//! imaging, the normal field, masks and components, the RSDF and the isosurface search. It
-//! reads captures and never reaches back into acquisition or simulation. So far it holds the
-//! image S(v) ([`image`]), the normal field ([`normals`]), the binary-mask threshold ([`threshold`]), 6-connected component
-//! labelling ([`components`]) and RSDF integration ([`rsdf`]); the other stages arrive with the reconstruction issue.
+//! Everything between a [`crate::capture::Capture`] and a point cloud; it reads captures and
+//! never reaches back into acquisition or simulation. In pipeline order:
+//! - [`config`]: the parameters (`recon.toml`);
+//! - [`volume`]: the imaged box, explicit or found from the data;
+//! - [`image`]: S(v) by range-FFT backprojection (Eq. 4–5);
+//! - [`normals`]: the normal field (Eq. 1–3, 6);
+//! - [`mask`] with [`threshold`]: the Li-thresholded binary image (Eq. 9–10);
+//! - [`components`]: 6-connected components;
+//! - [`rsdf`]: one relative signed distance function per component (Eq. 8);
+//! - [`trace`] and [`isosurface`]: the structural isosurface optimisation (Eq. 11–13) and the
+//!   ablations;
+//! - [`baselines`]: backprojection and interferometric points;
+//! - [`pipeline`]: the stages run in order, with timings, for `mmnormd reconstruct`.
 
+pub mod baselines;
 pub mod components;
+pub mod config;
 pub mod image;
+pub mod isosurface;
+pub mod mask;
 pub mod normals;
+pub mod pipeline;
 pub mod rsdf;
 pub mod threshold;
+pub mod trace;
+pub mod volume;
+
+pub use config::ReconConfig;
+pub use pipeline::{Reconstruction, reconstruct};

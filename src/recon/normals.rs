@@ -12,6 +12,7 @@ use num_complex::Complex32;
 
 use super::image::{MatchedFilter, RangeProfiles, VoxelGrid};
 use crate::capture::Capture;
+use crate::progress::Progress;
 
 /// How a vote's direction is formed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -30,36 +31,45 @@ pub fn normal_field(
     image: &[Complex32],
     min_fraction: f32,
     candidates: Candidates,
+    progress: Option<&Progress>,
 ) -> Vec<[f32; 3]> {
     let filter = MatchedFilter::new(capture, profiles);
     let centres: Vec<[f32; 3]> = (0..filter.antennas()).map(|a| filter.centre(a)).collect();
     let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
     let floor = min_fraction * peak;
-    grid.par_map([f32::NAN; 3], |index, v| {
-        let s = image[index];
-        let magnitude = s.norm();
-        if magnitude.is_nan() || magnitude <= floor {
-            return [f32::NAN; 3];
-        }
-        let mut sum = [0.0f32; 3];
+    let plane = grid.dims[1] * grid.dims[2];
+    grid.par_slabs([f32::NAN; 3], progress, |i, voxel_centres, slab| {
+        // The voxels above the floor, with S and |S|.
+        let active: Vec<(usize, Complex32, f32)> = (0..slab.len())
+            .filter_map(|k| {
+                let s = image[i * plane + k];
+                let magnitude = s.norm();
+                (magnitude > floor).then_some((k, s, magnitude))
+            })
+            .collect();
+        let mut sums = vec![[0.0f32; 3]; active.len()];
+        // Antenna-outer, as in the image, for cache locality.
         for (a, c) in centres.iter().enumerate() {
-            let response = filter.response(a, v);
-            // Eq. 6: projection of I_j onto S.
-            let w = (response.re * s.re + response.im * s.im) / magnitude;
-            let d = [c[0] - v[0], c[1] - v[1], c[2] - v[2]];
-            let scale = match candidates {
-                Candidates::Unit => w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
-                Candidates::Displacement => w,
-            };
-            for q in 0..3 {
-                sum[q] += scale * d[q];
+            for (sum, &(k, s, magnitude)) in sums.iter_mut().zip(&active) {
+                let v = voxel_centres[k];
+                let response = filter.response(a, v);
+                // Eq. 6: projection of I_j onto S.
+                let w = (response.re * s.re + response.im * s.im) / magnitude;
+                let d = [c[0] - v[0], c[1] - v[1], c[2] - v[2]];
+                let scale = match candidates {
+                    Candidates::Unit => w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+                    Candidates::Displacement => w,
+                };
+                for q in 0..3 {
+                    sum[q] += scale * d[q];
+                }
             }
         }
-        let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
-        if len > 0.0 {
-            sum.map(|c| c / len)
-        } else {
-            [f32::NAN; 3]
+        for (sum, &(k, _, _)) in sums.iter().zip(&active) {
+            let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
+            if len > 0.0 {
+                slab[k] = sum.map(|c| c / len);
+            }
         }
     })
 }
@@ -88,8 +98,16 @@ mod tests {
     ) -> f64 {
         let c = capture(object);
         let profiles = RangeProfiles::new(&c, &grid, 32);
-        let image = backproject(&c, &grid, &profiles);
-        let normals = normal_field(&c, &grid, &profiles, &image, min_fraction, Candidates::Unit);
+        let image = backproject(&c, &grid, &profiles, None);
+        let normals = normal_field(
+            &c,
+            &grid,
+            &profiles,
+            &image,
+            min_fraction,
+            Candidates::Unit,
+            None,
+        );
         let [_, ny, nz] = grid.dims;
         let mut cosines: Vec<f64> = Vec::new();
         for (v, n) in normals.iter().enumerate() {

@@ -1,0 +1,456 @@
+//! Reconstruction parameters: `recon.toml` (every key optional) and the command-line overrides.
+//!
+//! The defaults reproduce the paper's settings where it gives them (1 mm voxels, candidates every
+//! λ/2, 50 antennas, Li thresholding, 6-connectivity). Where the authors' code departs from the
+//! paper, the field's doc says which one the default follows.
+
+use serde::{Deserialize, Serialize};
+
+/// Which reconstruction to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// Normal field, RSDF and isosurface selection (paper §2–§4).
+    Mmnorm,
+    /// Voxels whose |S| exceeds a fraction of the maximum (paper §5 baseline).
+    Backprojection,
+    /// Depth from the phase change between sub-band 2-D images (Gao et al., paper §5 baseline).
+    Interferometric,
+}
+
+/// How each component's isosurface constant is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Isosurface {
+    /// Simulate candidate surfaces and match the measured spectra (§4, Eq. 11–13).
+    Optimized,
+    /// (max f + min f)/2 (ablation, §6.3.2).
+    Center,
+    /// The |S|-weighted mean of the candidates (ablation, §6.3.2).
+    Weighted,
+}
+
+/// How the normal field is integrated into the RSDF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Integration {
+    /// Least squares over every edge (the default; see `recon::rsdf`).
+    LeastSquares,
+    /// The authors' breadth-first single-path integral.
+    Bfs,
+}
+
+/// The volume to image.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumeSpec {
+    /// Found from the data (see `recon::volume`).
+    Auto,
+    /// `[x0, x1, y0, y1, z0, z1]` in the capture frame, metres.
+    Box([f64; 6]),
+}
+
+impl<'de> Deserialize<'de> for VolumeSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<VolumeSpec, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Name(String),
+            Bounds([f64; 6]),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Name(s) if s == "auto" => Ok(VolumeSpec::Auto),
+            Raw::Name(s) => Err(serde::de::Error::custom(format!(
+                "volume = \"{s}\": expected \"auto\" or [x0, x1, y0, y1, z0, z1]"
+            ))),
+            Raw::Bounds(b) => Ok(VolumeSpec::Box(b)),
+        }
+    }
+}
+
+impl std::str::FromStr for VolumeSpec {
+    type Err = String;
+
+    /// `auto` or `x0,x1,y0,y1,z0,z1` (metres).
+    fn from_str(s: &str) -> Result<VolumeSpec, String> {
+        if s.trim() == "auto" {
+            return Ok(VolumeSpec::Auto);
+        }
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        if parts.len() != 6 {
+            return Err(format!(
+                "volume \"{s}\": expected auto or six numbers x0,x1,y0,y1,z0,z1 in metres, got {} values",
+                parts.len()
+            ));
+        }
+        let mut b = [0.0f64; 6];
+        for (o, p) in b.iter_mut().zip(&parts) {
+            *o = p
+                .parse()
+                .map_err(|_| format!("volume \"{s}\": \"{p}\" is not a number"))?;
+        }
+        Ok(VolumeSpec::Box(b))
+    }
+}
+
+/// Automatic volume selection (`recon::volume`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AutoVolume {
+    /// One-way range window below the aperture searched for echoes, metres (range offset removed).
+    pub range_window_m: [f64; 2],
+    /// Coarse voxel edge, metres.
+    pub coarse_voxel_m: f64,
+    /// Antennas used for the coarse image (a seeded random subset: a sparse random array has no
+    /// grating lobes, unlike a decimated raster).
+    pub coarse_antennas: usize,
+    /// Coarse voxels with |S| above this fraction of the maximum form the high-power region.
+    pub power_fraction: f64,
+    /// Padding around the high-power region, metres.
+    pub pad_m: f64,
+}
+
+impl Default for AutoVolume {
+    fn default() -> AutoVolume {
+        AutoVolume {
+            range_window_m: [0.05, 1.5],
+            coarse_voxel_m: 0.004,
+            coarse_antennas: 3000,
+            power_fraction: 0.5,
+            pad_m: 0.03,
+        }
+    }
+}
+
+/// Structural isosurface optimisation (`recon::isosurface`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Optimisation {
+    /// Candidate spacing as a fraction of the carrier wavelength λ0 (paper: λ/2).
+    pub step_wavelengths: f64,
+    /// Candidates stay this far inside each component's RSDF range, metres (authors: 15 mm).
+    pub bound_inset_m: f64,
+    /// Antennas in the random subset (paper: 50).
+    pub antennas: usize,
+    /// Seed of the subset (recorded in summary.json).
+    pub seed: u64,
+    /// Strong-return filter: an antenna qualifies when its peak in the object's range window is
+    /// at least this fraction of the strongest antenna's.
+    pub strong_fraction: f64,
+    /// Angular spacing of the traced rays, degrees.
+    pub ray_step_deg: f64,
+    /// Zero padding of the cost's range FFT (factor over the chirp length).
+    pub cost_pad_factor: usize,
+    /// Coordinate-descent sweeps over components at most.
+    pub max_sweeps: usize,
+}
+
+impl Default for Optimisation {
+    fn default() -> Optimisation {
+        Optimisation {
+            step_wavelengths: 0.5,
+            bound_inset_m: 0.015,
+            antennas: 50,
+            seed: 1,
+            strong_fraction: 0.5,
+            ray_step_deg: 0.25,
+            cost_pad_factor: 4,
+            max_sweeps: 8,
+        }
+    }
+}
+
+/// Every reconstruction parameter.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReconConfig {
+    pub method: Method,
+    pub isosurface: Isosurface,
+    pub volume: VolumeSpec,
+    /// Voxel edge, metres (paper: 1 mm).
+    pub voxel_m: f64,
+    /// Range-FFT zero padding of the image (factor over the chirp length).
+    pub pad_factor: usize,
+    /// Normals are computed where |S| exceeds this fraction of the maximum (authors: 5 %).
+    pub normal_floor: f64,
+    /// Unit candidate vectors (paper Eq. 1) or the authors' un-normalised displacements.
+    pub unit_candidates: bool,
+    /// Exponents e tried in order for Li's threshold on |S|^e (authors: 2, 2.5, 3.5, 4).
+    pub li_exponents: Vec<f64>,
+    /// Li iterations before an attempt counts as failed (authors: 1000).
+    pub li_max_iterations: usize,
+    /// A mask attempt is accepted when its oriented bounding box is at most this volume, m³
+    /// (authors: 0.03).
+    pub max_mask_box_m3: f64,
+    /// Smallest component kept, m³ (authors: 3 cm × 3 cm × 4 cm), and the fallback used when no
+    /// component reaches it (1.5 × 1.5 × 2 cm).
+    pub min_component_m3: f64,
+    pub fallback_component_m3: f64,
+    pub integration: Integration,
+    pub optimisation: Optimisation,
+    pub auto_volume: AutoVolume,
+    /// Backprojection baseline: keep voxels with |S| ≥ this fraction of the maximum.
+    pub backprojection_fraction: f64,
+    /// Interferometric baseline: number of sub-bands.
+    pub interferometric_subbands: usize,
+    /// Interferometric baseline: keep pixels with |S| ≥ this fraction of the maximum.
+    pub interferometric_fraction: f64,
+}
+
+impl Default for ReconConfig {
+    fn default() -> ReconConfig {
+        ReconConfig {
+            method: Method::Mmnorm,
+            isosurface: Isosurface::Optimized,
+            volume: VolumeSpec::Auto,
+            voxel_m: 0.001,
+            pad_factor: 32,
+            normal_floor: 0.05,
+            unit_candidates: true,
+            li_exponents: vec![2.0, 2.5, 3.5, 4.0],
+            li_max_iterations: 1000,
+            max_mask_box_m3: 0.03,
+            min_component_m3: 0.03 * 0.03 * 0.04,
+            fallback_component_m3: 0.015 * 0.015 * 0.02,
+            integration: Integration::LeastSquares,
+            optimisation: Optimisation::default(),
+            auto_volume: AutoVolume::default(),
+            backprojection_fraction: 0.3,
+            interferometric_subbands: 8,
+            interferometric_fraction: 0.3,
+        }
+    }
+}
+
+/// A parameter outside its domain, named with its value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field} = {value}: {reason}")]
+pub struct InvalidParameter {
+    pub field: &'static str,
+    pub value: String,
+    pub reason: &'static str,
+}
+
+impl ReconConfig {
+    /// Parses `recon.toml` text; unknown keys are errors.
+    pub fn parse(text: &str) -> Result<ReconConfig, String> {
+        let config: ReconConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        config.validate().map_err(|e| e.to_string())?;
+        Ok(config)
+    }
+
+    /// Checks every numeric parameter's domain.
+    pub fn validate(&self) -> Result<(), InvalidParameter> {
+        fn check(
+            field: &'static str,
+            value: f64,
+            ok: bool,
+            reason: &'static str,
+        ) -> Result<(), InvalidParameter> {
+            if ok && value.is_finite() {
+                Ok(())
+            } else {
+                Err(InvalidParameter {
+                    field,
+                    value: value.to_string(),
+                    reason,
+                })
+            }
+        }
+        let unit = |x: f64| x > 0.0 && x <= 1.0;
+        check(
+            "voxel_m",
+            self.voxel_m,
+            self.voxel_m >= 1e-4 && self.voxel_m <= 0.05,
+            "must lie in [0.0001, 0.05] m",
+        )?;
+        check(
+            "pad_factor",
+            self.pad_factor as f64,
+            (1..=256).contains(&self.pad_factor),
+            "must lie in 1..=256",
+        )?;
+        check(
+            "normal_floor",
+            self.normal_floor,
+            (0.0..1.0).contains(&self.normal_floor),
+            "must lie in [0, 1)",
+        )?;
+        if self.li_exponents.is_empty() || self.li_exponents.iter().any(|e| e.is_nan() || *e <= 0.0)
+        {
+            return Err(InvalidParameter {
+                field: "li_exponents",
+                value: format!("{:?}", self.li_exponents),
+                reason: "must be a non-empty list of positive exponents",
+            });
+        }
+        check(
+            "max_mask_box_m3",
+            self.max_mask_box_m3,
+            self.max_mask_box_m3 > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "min_component_m3",
+            self.min_component_m3,
+            self.min_component_m3 >= 0.0,
+            "must not be negative",
+        )?;
+        check(
+            "fallback_component_m3",
+            self.fallback_component_m3,
+            self.fallback_component_m3 >= 0.0,
+            "must not be negative",
+        )?;
+        let o = &self.optimisation;
+        check(
+            "optimisation.step_wavelengths",
+            o.step_wavelengths,
+            o.step_wavelengths > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "optimisation.bound_inset_m",
+            o.bound_inset_m,
+            o.bound_inset_m >= 0.0,
+            "must not be negative",
+        )?;
+        check(
+            "optimisation.antennas",
+            o.antennas as f64,
+            o.antennas >= 1,
+            "must be at least 1",
+        )?;
+        check(
+            "optimisation.strong_fraction",
+            o.strong_fraction,
+            unit(o.strong_fraction),
+            "must lie in (0, 1]",
+        )?;
+        check(
+            "optimisation.ray_step_deg",
+            o.ray_step_deg,
+            o.ray_step_deg >= 0.01 && o.ray_step_deg <= 5.0,
+            "must lie in [0.01, 5] degrees",
+        )?;
+        check(
+            "optimisation.cost_pad_factor",
+            o.cost_pad_factor as f64,
+            (1..=64).contains(&o.cost_pad_factor),
+            "must lie in 1..=64",
+        )?;
+        check(
+            "optimisation.max_sweeps",
+            o.max_sweeps as f64,
+            o.max_sweeps >= 1,
+            "must be at least 1",
+        )?;
+        let a = &self.auto_volume;
+        check(
+            "auto_volume.range_window_m",
+            a.range_window_m[0],
+            a.range_window_m[0] >= 0.0 && a.range_window_m[1] > a.range_window_m[0],
+            "must be [min, max] with 0 ≤ min < max",
+        )?;
+        check(
+            "auto_volume.coarse_voxel_m",
+            a.coarse_voxel_m,
+            a.coarse_voxel_m >= 1e-3 && a.coarse_voxel_m <= 0.05,
+            "must lie in [0.001, 0.05] m",
+        )?;
+        check(
+            "auto_volume.coarse_antennas",
+            a.coarse_antennas as f64,
+            a.coarse_antennas >= 16,
+            "must be at least 16",
+        )?;
+        check(
+            "auto_volume.power_fraction",
+            a.power_fraction,
+            unit(a.power_fraction),
+            "must lie in (0, 1]",
+        )?;
+        check(
+            "auto_volume.pad_m",
+            a.pad_m,
+            a.pad_m >= 0.0,
+            "must not be negative",
+        )?;
+        check(
+            "backprojection_fraction",
+            self.backprojection_fraction,
+            unit(self.backprojection_fraction),
+            "must lie in (0, 1]",
+        )?;
+        check(
+            "interferometric_subbands",
+            self.interferometric_subbands as f64,
+            (2..=64).contains(&self.interferometric_subbands),
+            "must lie in 2..=64",
+        )?;
+        check(
+            "interferometric_fraction",
+            self.interferometric_fraction,
+            unit(self.interferometric_fraction),
+            "must lie in (0, 1]",
+        )?;
+        if let VolumeSpec::Box(b) = self.volume {
+            for axis in 0..3 {
+                let (lo, hi) = (b[2 * axis], b[2 * axis + 1]);
+                if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+                    return Err(InvalidParameter {
+                        field: "volume",
+                        value: format!("{b:?}"),
+                        reason: "each axis needs finite bounds with min < max",
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_keys_parse() {
+        ReconConfig::default().validate().unwrap();
+        let c = ReconConfig::parse(
+            "method = \"backprojection\"\nvolume = [-0.1, 0.1, -0.1, 0.1, -0.05, 0.1]\n[optimisation]\nseed = 7\n",
+        )
+        .unwrap();
+        assert_eq!(c.method, Method::Backprojection);
+        assert_eq!(
+            c.volume,
+            VolumeSpec::Box([-0.1, 0.1, -0.1, 0.1, -0.05, 0.1])
+        );
+        assert_eq!(c.optimisation.seed, 7);
+        assert_eq!(c.optimisation.antennas, 50);
+    }
+
+    #[test]
+    fn errors_name_the_field_and_value() {
+        let e = ReconConfig::parse("voxel_m = 0.0\n").unwrap_err();
+        assert!(e.contains("voxel_m = 0"), "{e}");
+        let e = ReconConfig::parse("[optimisation]\nantenas = 5\n").unwrap_err();
+        assert!(e.contains("antenas"), "{e}");
+        let e = ReconConfig::parse("volume = [0.1, 0.0, 0, 1, 0, 1]\n").unwrap_err();
+        assert!(e.contains("volume"), "{e}");
+        let e = ReconConfig::parse("volume = \"big\"\n").unwrap_err();
+        assert!(e.contains("big"), "{e}");
+        assert!(
+            "1,2,3"
+                .parse::<VolumeSpec>()
+                .unwrap_err()
+                .contains("3 values")
+        );
+        assert!(
+            "0,1,0,1,0,x"
+                .parse::<VolumeSpec>()
+                .unwrap_err()
+                .contains("\"x\"")
+        );
+    }
+}

@@ -1,0 +1,231 @@
+//! The binary image of §3.2 (Eq. 9–10): the voxels that hold the object's surface.
+//!
+//! As in the authors' code (mmnorm-reference §4.1), Li's threshold is computed on |S|^e for
+//! e = 2, 2.5, 3.5, 4 in turn. An attempt fails when Li does not converge within the iteration
+//! limit. A successful attempt is accepted when the oriented bounding box of its voxels is at most
+//! `max_box_m3` (0.03 m³). The mask is (|S| > floor·max|S|) ∧ (|S|^e ≥ t_Li).
+//!
+//! Two departures, both deliberate:
+//! - The oriented box is the principal-axes box of the voxel centres (plus one voxel), not
+//!   open3d's minimal box. It is never smaller than the minimal one, so the guard is at most
+//!   slightly stricter.
+//! - When no attempt passes the guard, the authors use the last exponent's mask if that attempt
+//!   converged and exit otherwise, even if an earlier one converged. mmnormd uses the converged
+//!   attempt with the smallest box, and fails only when none converged.
+//!
+//! |S| is divided by its maximum before the exponent; Li's iteration is scale-equivariant, so this
+//! changes nothing but the floating-point range.
+
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use serde::Serialize;
+
+use super::image::VoxelGrid;
+use super::threshold::li_threshold;
+
+/// One exponent's attempt.
+#[derive(Debug, Clone, Serialize)]
+pub struct MaskAttempt {
+    pub exponent: f64,
+    /// Li's threshold on (|S|/max)^e; None when it did not converge.
+    pub threshold: Option<f64>,
+    pub iterations: Option<usize>,
+    pub voxels: usize,
+    pub box_m3: Option<f64>,
+    pub accepted: bool,
+}
+
+/// The chosen mask and every attempt.
+#[derive(Debug, Clone)]
+pub struct Mask {
+    pub mask: Vec<bool>,
+    pub attempts: Vec<MaskAttempt>,
+    /// The exponent whose threshold made the mask.
+    pub exponent: f64,
+}
+
+/// Why no mask was made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MaskError {
+    #[error("the image is zero everywhere: nothing above the noise in the volume")]
+    EmptyImage,
+    #[error("Li's threshold did not converge for any exponent in {0:?}")]
+    NoThreshold(Vec<f64>),
+}
+
+/// Builds the mask from |S| (`magnitude`, C order on `grid`).
+pub fn li_mask(
+    magnitude: &[f32],
+    grid: &VoxelGrid,
+    floor_fraction: f64,
+    exponents: &[f64],
+    max_iterations: usize,
+    max_box_m3: f64,
+) -> Result<Mask, MaskError> {
+    let peak = magnitude.iter().copied().fold(0.0f32, f32::max);
+    if peak.is_nan() || peak <= 0.0 {
+        return Err(MaskError::EmptyImage);
+    }
+    let relative: Vec<f64> = magnitude
+        .iter()
+        .map(|&m| f64::from(m) / f64::from(peak))
+        .collect();
+    let mut attempts = Vec::new();
+    let mut best: Option<(f64, Vec<bool>, f64)> = None; // (box, mask, exponent)
+    for &e in exponents {
+        let powered: Vec<f64> = relative.iter().map(|r| r.powf(e)).collect();
+        let Ok(li) = li_threshold(&powered, max_iterations) else {
+            attempts.push(MaskAttempt {
+                exponent: e,
+                threshold: None,
+                iterations: None,
+                voxels: 0,
+                box_m3: None,
+                accepted: false,
+            });
+            continue;
+        };
+        let mask: Vec<bool> = relative
+            .iter()
+            .zip(&powered)
+            .map(|(&r, &p)| r > floor_fraction && p >= li.threshold)
+            .collect();
+        let box_m3 = oriented_box_m3(&mask, grid);
+        let accepted = box_m3 <= max_box_m3;
+        attempts.push(MaskAttempt {
+            exponent: e,
+            threshold: Some(li.threshold),
+            iterations: Some(li.iterations),
+            voxels: mask.iter().filter(|&&m| m).count(),
+            box_m3: Some(box_m3),
+            accepted,
+        });
+        if accepted {
+            return Ok(Mask {
+                mask,
+                attempts,
+                exponent: e,
+            });
+        }
+        if best.as_ref().is_none_or(|b| box_m3 < b.0) {
+            best = Some((box_m3, mask, e));
+        }
+    }
+    match best {
+        Some((_, mask, exponent)) => Ok(Mask {
+            mask,
+            attempts,
+            exponent,
+        }),
+        None => Err(MaskError::NoThreshold(exponents.to_vec())),
+    }
+}
+
+/// Volume of the principal-axes bounding box of the masked voxel centres, each axis grown by
+/// one voxel, m³.
+pub fn oriented_box_m3(mask: &[bool], grid: &VoxelGrid) -> f64 {
+    let [_, ny, nz] = grid.dims;
+    let points: Vec<Vector3<f64>> = mask
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| **m)
+        .map(|(v, _)| Vector3::from(grid.centre(v / (ny * nz), (v / nz) % ny, v % nz)))
+        .collect();
+    if points.is_empty() {
+        return 0.0;
+    }
+    let n = points.len() as f64;
+    let mean = points.iter().sum::<Vector3<f64>>() / n;
+    let cov = points
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
+    let axes = SymmetricEigen::new(cov).eigenvectors;
+    (0..3)
+        .map(|k| {
+            let axis = axes.column(k);
+            let (lo, hi) = points
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                    let s = axis.dot(&(p - mean));
+                    (a.min(s), b.max(s))
+                });
+            hi - lo + grid.voxel_m
+        })
+        .product()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(dims: [usize; 3]) -> VoxelGrid {
+        VoxelGrid {
+            origin_m: [0.0; 3],
+            voxel_m: 0.01,
+            dims,
+        }
+    }
+
+    #[test]
+    fn a_bright_blob_on_a_dim_floor_is_masked() {
+        let g = grid([20, 20, 20]);
+        let mut magnitude = vec![0.01f32; g.len()];
+        for i in 5..10 {
+            for j in 6..12 {
+                for k in 8..11 {
+                    magnitude[(i * 20 + j) * 20 + k] = 1.0;
+                }
+            }
+        }
+        let m = li_mask(&magnitude, &g, 0.05, &[2.0], 1000, 1.0).unwrap();
+        assert_eq!(m.mask.iter().filter(|&&x| x).count(), 5 * 6 * 3);
+        assert!(m.attempts[0].accepted);
+        // 5 × 6 × 3 voxels of 1 cm: the box is 0.05 × 0.06 × 0.03 m.
+        let b = m.attempts[0].box_m3.unwrap();
+        assert!((b - 9e-5).abs() < 1e-9, "{b}");
+    }
+
+    #[test]
+    fn a_rotated_slab_has_a_thin_oriented_box() {
+        // A one-voxel-thick diagonal sheet x = y: the axis-aligned box is 20 × 20 × 5 voxels, the
+        // oriented one about 28 × 1.4 × 5.
+        let g = grid([20, 20, 5]);
+        let mut mask = vec![false; g.len()];
+        for i in 0..20 {
+            for k in 0..5 {
+                mask[(i * 20 + i) * 5 + k] = true;
+            }
+        }
+        let b = oriented_box_m3(&mask, &g);
+        let aligned = 0.2 * 0.2 * 0.05;
+        assert!(b < 0.3 * aligned, "{b} vs {aligned}");
+    }
+
+    #[test]
+    fn a_box_over_the_limit_falls_back_to_the_smallest() {
+        let g = grid([10, 10, 10]);
+        let mut magnitude = vec![0.0f32; g.len()];
+        for (v, m) in magnitude.iter_mut().enumerate() {
+            *m = 0.5 + 0.5 * ((v * 7919) % 101) as f32 / 101.0;
+        }
+        let m = li_mask(&magnitude, &g, 0.05, &[2.0, 4.0], 1000, 1e-9).unwrap();
+        assert!(m.attempts.iter().all(|a| !a.accepted));
+        let smallest = m
+            .attempts
+            .iter()
+            .filter_map(|a| a.box_m3)
+            .fold(f64::INFINITY, f64::min);
+        let used = m
+            .attempts
+            .iter()
+            .find(|a| a.exponent == m.exponent)
+            .and_then(|a| a.box_m3)
+            .unwrap();
+        assert_eq!(used, smallest);
+        assert_eq!(
+            li_mask(&[0.0; 8], &grid([2, 2, 2]), 0.05, &[2.0], 10, 1.0).unwrap_err(),
+            MaskError::EmptyImage
+        );
+    }
+}

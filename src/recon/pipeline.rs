@@ -1,0 +1,446 @@
+//! The reconstruction from a capture to points: volume, image, then the chosen method.
+//!
+//! For mmNorm: normal field → mask → components → one RSDF per component → one isosurface
+//! constant per component → the voxel centres within half a voxel of each chosen level, with
+//! their estimated normals. (The authors keep |f − C| < 1 mm, a two-voxel shell; half a voxel
+//! gives one layer, which is all a point cloud needs.)
+
+use std::time::Instant;
+
+use num_complex::Complex32;
+use serde::Serialize;
+
+use super::baselines::{backprojection_points, interferometric_points};
+use super::components::label_6;
+use super::config::{Integration, Isosurface, Method, ReconConfig};
+use super::image::{RangeProfiles, VoxelGrid, backproject};
+use super::isosurface::{
+    OptimisationError, OptimisationReport, candidates, centre_constant, optimise, weighted_constant,
+};
+use super::mask::{MaskAttempt, MaskError, li_mask};
+use super::normals::{Candidates, normal_field};
+use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
+use super::trace::SampledField;
+use super::volume::{AutoReport, VolumeError, select};
+use crate::capture::{Capture, InvalidCapture};
+use crate::progress::Progress;
+
+/// Why a reconstruction failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReconError {
+    #[error(transparent)]
+    Capture(#[from] InvalidCapture),
+    #[error(transparent)]
+    Config(#[from] super::config::InvalidParameter),
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
+    #[error(transparent)]
+    Mask(#[from] MaskError),
+    #[error(transparent)]
+    Optimisation(#[from] OptimisationError),
+    #[error(
+        "no connected high-power component of at least {fallback_voxels} voxels ({fallback_m3:e} m³) in the volume"
+    )]
+    NoComponent {
+        fallback_voxels: usize,
+        fallback_m3: f64,
+    },
+}
+
+/// One component in the summary.
+#[derive(Debug, Clone, Serialize)]
+pub struct ComponentSummary {
+    /// 1-based, as in `points.ply`'s `component` column.
+    pub component: u32,
+    pub voxels: usize,
+    pub rsdf_min_m: f64,
+    pub rsdf_max_m: f64,
+    pub constant_m: f64,
+    pub points: usize,
+}
+
+/// The mask stage in the summary.
+#[derive(Debug, Clone, Serialize)]
+pub struct MaskSummary {
+    pub normal_floor: f64,
+    pub exponent: f64,
+    pub attempts: Vec<MaskAttempt>,
+    pub min_component_voxels: usize,
+    pub used_fallback_size: bool,
+}
+
+/// Everything summary.json records besides the configuration.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub method: Method,
+    pub isosurface: Option<Isosurface>,
+    pub antennas: usize,
+    pub samples_per_chirp: usize,
+    pub grid: VoxelGrid,
+    pub auto_volume: Option<AutoReport>,
+    /// (stage, seconds), in order.
+    pub stage_s: Vec<(String, f64)>,
+    pub image_peak: f32,
+    pub mask: Option<MaskSummary>,
+    pub components: Vec<ComponentSummary>,
+    pub optimisation: Option<OptimisationReport>,
+    pub interferometric_reference_z_m: Option<f64>,
+    pub points: usize,
+}
+
+/// Points, with normals where the method has them, and what made them.
+#[derive(Debug, Clone)]
+pub struct Reconstruction {
+    pub points_m: Vec<[f64; 3]>,
+    pub normals: Option<Vec<[f64; 3]>>,
+    /// Component per point (1-based; 0 where the method has no components).
+    pub components: Vec<u32>,
+    pub summary: Summary,
+    /// |S| on the grid, for previews.
+    pub magnitude: Vec<f32>,
+}
+
+/// Runs the reconstruction `config` describes.
+pub fn reconstruct(
+    capture: &Capture,
+    config: &ReconConfig,
+    quiet: bool,
+) -> Result<Reconstruction, ReconError> {
+    capture.validate()?;
+    config.validate()?;
+    let mut stages = Stages::default();
+
+    let (grid, auto_volume) = select(
+        capture,
+        config.volume,
+        config.voxel_m,
+        config.pad_factor,
+        &config.auto_volume,
+    )?;
+    tracing::info!(
+        "volume: {:?} voxels of {} mm from {:?}",
+        grid.dims,
+        grid.voxel_m * 1e3,
+        grid.origin_m
+    );
+    stages.lap("volume");
+    let profiles = RangeProfiles::new(capture, &grid, config.pad_factor);
+    let progress = Progress::new("image", grid.dims[0] as u64, quiet);
+    let image = backproject(capture, &grid, &profiles, Some(&progress));
+    progress.finish();
+    let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
+    let image_peak = magnitude.iter().copied().fold(0.0f32, f32::max);
+    stages.lap("image");
+
+    let mut summary = Summary {
+        method: config.method,
+        isosurface: (config.method == Method::Mmnorm).then_some(config.isosurface),
+        antennas: capture.antennas(),
+        samples_per_chirp: capture.plan.samples_per_chirp,
+        grid,
+        auto_volume,
+        stage_s: Vec::new(),
+        image_peak,
+        mask: None,
+        components: Vec::new(),
+        optimisation: None,
+        interferometric_reference_z_m: None,
+        points: 0,
+    };
+    let (points_m, normals, components) = match config.method {
+        Method::Backprojection => {
+            let (points, kept) =
+                backprojection_points(&magnitude, &grid, config.backprojection_fraction);
+            let mut mask = vec![false; grid.len()];
+            for &v in &kept {
+                mask[v] = true;
+            }
+            let labels = label_6(&mask, grid.dims, 1).labels;
+            let comps = kept.iter().map(|&v| labels[v]).collect();
+            stages.lap("threshold");
+            (points, None, comps)
+        }
+        Method::Interferometric => {
+            let (points, z_ref) = interferometric_points(
+                capture,
+                &grid,
+                &magnitude,
+                config.interferometric_subbands,
+                config.interferometric_fraction,
+                config.pad_factor,
+                quiet,
+            );
+            summary.interferometric_reference_z_m = z_ref.is_finite().then_some(z_ref);
+            stages.lap("interferometry");
+            let n = points.len();
+            (points, None, vec![0; n])
+        }
+        Method::Mmnorm => mmnorm(
+            capture,
+            config,
+            &grid,
+            &profiles,
+            &image,
+            &magnitude,
+            quiet,
+            &mut summary,
+            &mut stages,
+        )?,
+    };
+    summary.stage_s = stages.list;
+    summary.points = points_m.len();
+    Ok(Reconstruction {
+        points_m,
+        normals,
+        components,
+        summary,
+        magnitude,
+    })
+}
+
+/// Wall time per stage.
+struct Stages {
+    clock: Instant,
+    list: Vec<(String, f64)>,
+}
+
+impl Default for Stages {
+    fn default() -> Stages {
+        Stages {
+            clock: Instant::now(),
+            list: Vec::new(),
+        }
+    }
+}
+
+impl Stages {
+    /// Records the time since the previous lap under `name`.
+    fn lap(&mut self, name: &str) {
+        self.list
+            .push((name.to_string(), self.clock.elapsed().as_secs_f64()));
+        self.clock = Instant::now();
+    }
+}
+
+type Points = (Vec<[f64; 3]>, Option<Vec<[f64; 3]>>, Vec<u32>);
+
+#[allow(clippy::too_many_arguments)]
+fn mmnorm(
+    capture: &Capture,
+    config: &ReconConfig,
+    grid: &VoxelGrid,
+    profiles: &RangeProfiles,
+    image: &[Complex32],
+    magnitude: &[f32],
+    quiet: bool,
+    summary: &mut Summary,
+    stages: &mut Stages,
+) -> Result<Points, ReconError> {
+    let candidates_kind = if config.unit_candidates {
+        Candidates::Unit
+    } else {
+        Candidates::Displacement
+    };
+    let progress = Progress::new("normals", grid.dims[0] as u64, quiet);
+    let normals = normal_field(
+        capture,
+        grid,
+        profiles,
+        image,
+        config.normal_floor as f32,
+        candidates_kind,
+        Some(&progress),
+    );
+    progress.finish();
+    stages.lap("normals");
+
+    let mask = li_mask(
+        magnitude,
+        grid,
+        config.normal_floor,
+        &config.li_exponents,
+        config.li_max_iterations,
+        config.max_mask_box_m3,
+    )?;
+    let voxel_m3 = grid.voxel_m.powi(3);
+    let to_voxels = |m3: f64| (m3 / voxel_m3).round() as usize;
+    let with_normal: Vec<bool> = mask
+        .mask
+        .iter()
+        .zip(&normals)
+        .map(|(&m, n)| m && n[0].is_finite())
+        .collect();
+    let mut min_voxels = to_voxels(config.min_component_m3);
+    let mut labelled = label_6(&with_normal, grid.dims, min_voxels);
+    let mut used_fallback = false;
+    if labelled.sizes.is_empty() {
+        min_voxels = to_voxels(config.fallback_component_m3);
+        labelled = label_6(&with_normal, grid.dims, min_voxels);
+        used_fallback = true;
+    }
+    summary.mask = Some(MaskSummary {
+        normal_floor: config.normal_floor,
+        exponent: mask.exponent,
+        attempts: mask.attempts,
+        min_component_voxels: min_voxels,
+        used_fallback_size: used_fallback,
+    });
+    if labelled.sizes.is_empty() {
+        return Err(ReconError::NoComponent {
+            fallback_voxels: min_voxels,
+            fallback_m3: config.fallback_component_m3,
+        });
+    }
+    stages.lap("mask");
+
+    let count = labelled.sizes.len();
+    let progress = Progress::new("rsdf", count as u64, quiet);
+    let fields: Vec<SampledField> = (1..=count as u32)
+        .map(|label| {
+            let field = ComponentField {
+                dims: grid.dims,
+                voxel_m: grid.voxel_m,
+                normals: &normals,
+                labels: &labelled.labels,
+                label,
+            };
+            let f = match config.integration {
+                Integration::LeastSquares => integrate_least_squares(&field, 1e-6, 20_000),
+                Integration::Bfs => integrate_bfs(&field),
+            };
+            progress.inc(1);
+            crop(grid, &f)
+        })
+        .collect();
+    progress.finish();
+    stages.lap("rsdf");
+
+    let range = |f: &SampledField| {
+        f.values
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(f64::from(v)), b.max(f64::from(v)))
+            })
+    };
+    let ranges: Vec<(f64, f64)> = fields.iter().map(range).collect();
+    let step = config.optimisation.step_wavelengths * capture.plan.first_wavelength_m();
+    let candidate_sets: Vec<Vec<f64>> = ranges
+        .iter()
+        .map(|&(lo, hi)| candidates(lo, hi, step, config.optimisation.bound_inset_m))
+        .collect();
+    let constants: Vec<f64> = match config.isosurface {
+        Isosurface::Center => ranges
+            .iter()
+            .map(|&(lo, hi)| centre_constant(lo, hi))
+            .collect(),
+        Isosurface::Weighted => (0..count)
+            .map(|n| {
+                let values = component_values(grid, &fields[n], magnitude);
+                let all = candidates(ranges[n].0, ranges[n].1, step, 0.0);
+                weighted_constant(&values, &all)
+            })
+            .collect(),
+        Isosurface::Optimized => {
+            let report = optimise(
+                capture,
+                &fields,
+                &candidate_sets,
+                &config.optimisation,
+                quiet,
+            )?;
+            let c = report.components.iter().map(|c| c.constant).collect();
+            summary.optimisation = Some(report);
+            c
+        }
+    };
+    stages.lap("isosurface");
+
+    let mut points = Vec::new();
+    let mut point_normals = Vec::new();
+    let mut comps = Vec::new();
+    for (n, field) in fields.iter().enumerate() {
+        let g = &field.grid;
+        let [_, ny, nz] = g.dims;
+        let before = points.len();
+        for (v, &f) in field.values.iter().enumerate() {
+            if f.is_finite() && (f64::from(f) - constants[n]).abs() < 0.5 * g.voxel_m {
+                let p = g.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+                let normal = normals[flat_index(grid, &p)];
+                points.push(p);
+                point_normals.push(normal.map(f64::from));
+                comps.push(n as u32 + 1);
+            }
+        }
+        summary.components.push(ComponentSummary {
+            component: n as u32 + 1,
+            voxels: labelled.sizes[n],
+            rsdf_min_m: ranges[n].0,
+            rsdf_max_m: ranges[n].1,
+            constant_m: constants[n],
+            points: points.len() - before,
+        });
+    }
+    stages.lap("points");
+    Ok((points, Some(point_normals), comps))
+}
+
+/// The flat index in `grid` of the voxel centred at `p` (a centre of a sub-grid of `grid`).
+fn flat_index(grid: &VoxelGrid, p: &[f64; 3]) -> usize {
+    let [_, ny, nz] = grid.dims;
+    let i = [0, 1, 2].map(|a| ((p[a] - grid.origin_m[a]) / grid.voxel_m).round() as usize);
+    (i[0] * ny + i[1]) * nz + i[2]
+}
+
+/// The component's RSDF cropped to its bounding box plus one voxel.
+fn crop(grid: &VoxelGrid, f: &[f32]) -> SampledField {
+    let [nx, ny, nz] = grid.dims;
+    let mut lo = [usize::MAX; 3];
+    let mut hi = [0usize; 3];
+    for (v, x) in f.iter().enumerate() {
+        if x.is_finite() {
+            let c = [v / (ny * nz), (v / nz) % ny, v % nz];
+            for a in 0..3 {
+                lo[a] = lo[a].min(c[a]);
+                hi[a] = hi[a].max(c[a]);
+            }
+        }
+    }
+    let lo = [0, 1, 2].map(|a| lo[a].saturating_sub(1));
+    let hi = [
+        hi[0].min(nx - 2) + 1,
+        hi[1].min(ny - 2) + 1,
+        hi[2].min(nz - 2) + 1,
+    ];
+    let dims = [0, 1, 2].map(|a| hi[a] - lo[a] + 1);
+    let sub = VoxelGrid {
+        origin_m: grid.centre(lo[0], lo[1], lo[2]),
+        voxel_m: grid.voxel_m,
+        dims,
+    };
+    let mut values = Vec::with_capacity(sub.len());
+    for i in lo[0]..=hi[0] {
+        for j in lo[1]..=hi[1] {
+            for k in lo[2]..=hi[2] {
+                values.push(f[(i * ny + j) * nz + k]);
+            }
+        }
+    }
+    SampledField { grid: sub, values }
+}
+
+/// (f, |S|) for the component's voxels.
+fn component_values(grid: &VoxelGrid, field: &SampledField, magnitude: &[f32]) -> Vec<(f32, f32)> {
+    let g = &field.grid;
+    let [_, ny, nz] = g.dims;
+    field
+        .values
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.is_finite())
+        .map(|(v, &f)| {
+            let p = g.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            (f, magnitude[flat_index(grid, &p)])
+        })
+        .collect()
+}

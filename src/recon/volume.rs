@@ -1,0 +1,259 @@
+//! The imaged volume: an explicit box, or one found from the data.
+//!
+//! The authors image a fixed box in their radar frame (mmnorm-reference §2). mmnormd derives the
+//! box from the capture instead, so any aperture height, size or position works:
+//! 1. **Range window.** The incoherent sum of |range profile|² over a seeded random subset of
+//!    antennas (Hann-windowed), restricted to `range_window_m` (one-way, range offset removed),
+//!    keeps the ranges within 20 dB of its peak. Nothing lies nearer than the nearest echo, so
+//!    the near-field aliasing of a sparse aperture close to the antennas stays out.
+//! 2. **Coarse image.** S(v) on `coarse_voxel_m` voxels over the aperture's x–y extent and the
+//!    heights those ranges allow below the aperture, from the same antenna subset. A sparse random
+//!    array has no grating lobes, unlike a decimated raster.
+//! 3. **Region.** The box around the coarse voxels with |S| ≥ `power_fraction`·max, padded by
+//!    `pad_m` (3 cm), on the fine voxel size.
+//!
+//! The aperture plane is the mean height of the antennas' phase centres; the antennas look down
+//! (−z), as in every capture mmnormd writes.
+
+use num_complex::Complex32;
+use rustfft::FftPlanner;
+
+use super::config::{AutoVolume, VolumeSpec};
+use super::image::{RangeProfiles, VoxelGrid, backproject};
+use crate::SPEED_OF_LIGHT_M_PER_S;
+use crate::capture::Capture;
+use crate::signal::Rng;
+
+/// The largest fine grid accepted, voxels (about 1.3 GB of image and normals).
+pub const MAX_VOXELS: usize = 60_000_000;
+
+/// Why no volume could be set up.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VolumeError {
+    #[error(
+        "volume z1 = {z1_m} m is not below the aperture plane at z = {aperture_z_m:.4} m: the radar looks down"
+    )]
+    AboveAperture { z1_m: f64, aperture_z_m: f64 },
+    #[error(
+        "volume {bounds:?} at {voxel_m} m voxels has {voxels} voxels, more than the {max} allowed; use a smaller box or larger voxels"
+    )]
+    TooLarge {
+        bounds: [f64; 6],
+        voxel_m: f64,
+        voxels: usize,
+        max: usize,
+    },
+    #[error(
+        "no echo within auto_volume.range_window_m = [{0}, {1}] m below the aperture; widen the window or give --volume"
+    )]
+    NoEcho(f64, f64),
+    #[error("volume {bounds:?} spans less than two {voxel_m} m voxels along {axis}")]
+    TooThin {
+        bounds: [f64; 6],
+        voxel_m: f64,
+        axis: char,
+    },
+}
+
+/// What the automatic search found (recorded in summary.json).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AutoReport {
+    pub aperture_z_m: f64,
+    pub echo_range_m: [f64; 2],
+    pub coarse_grid: VoxelGrid,
+    pub coarse_antennas: usize,
+    pub region_m: [f64; 6],
+}
+
+/// Height of the aperture plane: the mean z of the phase centres.
+pub fn aperture_z_m(capture: &Capture) -> f64 {
+    let centres = capture.centres_m();
+    centres.iter().map(|c| c[2]).sum::<f64>() / centres.len().max(1) as f64
+}
+
+/// The grid of voxel edge `voxel_m` whose voxel centres cover `bounds` = [x0, x1, y0, y1, z0, z1].
+pub fn grid_for(bounds: [f64; 6], voxel_m: f64) -> Result<VoxelGrid, VolumeError> {
+    let dims = [0, 1, 2].map(|a| {
+        (((bounds[2 * a + 1] - bounds[2 * a]) / voxel_m)
+            .floor()
+            .max(0.0) as usize)
+            .saturating_add(1)
+    });
+    if let Some(a) = (0..3).find(|&a| dims[a] < 2) {
+        return Err(VolumeError::TooThin {
+            bounds,
+            voxel_m,
+            axis: ['x', 'y', 'z'][a],
+        });
+    }
+    let voxels = dims.iter().fold(1usize, |acc, &d| acc.saturating_mul(d));
+    if voxels > MAX_VOXELS {
+        return Err(VolumeError::TooLarge {
+            bounds,
+            voxel_m,
+            voxels,
+            max: MAX_VOXELS,
+        });
+    }
+    Ok(VoxelGrid {
+        origin_m: [bounds[0], bounds[2], bounds[4]],
+        voxel_m,
+        dims,
+    })
+}
+
+/// The fine grid for `spec`, and the automatic search's report where it ran.
+pub fn select(
+    capture: &Capture,
+    spec: VolumeSpec,
+    voxel_m: f64,
+    pad_factor: usize,
+    auto: &AutoVolume,
+) -> Result<(VoxelGrid, Option<AutoReport>), VolumeError> {
+    let aperture_z = aperture_z_m(capture);
+    match spec {
+        VolumeSpec::Box(b) => {
+            if b[5] >= aperture_z {
+                return Err(VolumeError::AboveAperture {
+                    z1_m: b[5],
+                    aperture_z_m: aperture_z,
+                });
+            }
+            Ok((grid_for(b, voxel_m)?, None))
+        }
+        VolumeSpec::Auto => {
+            let report = find_region(capture, aperture_z, pad_factor, auto)?;
+            let r = report.region_m;
+            // Snap outwards to whole voxels so the grid does not depend on float noise.
+            let snap = |x: f64, up: bool| {
+                let q = x / voxel_m;
+                voxel_m * if up { q.ceil() } else { q.floor() }
+            };
+            let mut b = [0.0; 6];
+            for a in 0..3 {
+                b[2 * a] = snap(r[2 * a] - auto.pad_m, false);
+                b[2 * a + 1] = snap(r[2 * a + 1] + auto.pad_m, true);
+            }
+            // Never reach up to the aperture itself.
+            b[5] = b[5].min(snap(aperture_z - auto.range_window_m[0], false));
+            Ok((grid_for(b, voxel_m)?, Some(report)))
+        }
+    }
+}
+
+fn find_region(
+    capture: &Capture,
+    aperture_z: f64,
+    pad_factor: usize,
+    auto: &AutoVolume,
+) -> Result<AutoReport, VolumeError> {
+    let n = capture.antennas();
+    let mut chosen: Vec<usize> = (0..n).collect();
+    if n > auto.coarse_antennas {
+        let mut rng = Rng::new(0x766f_6c75_6d65);
+        // Partial Fisher–Yates: the first `coarse_antennas` entries are a uniform sample.
+        for i in 0..auto.coarse_antennas {
+            let j = i + (rng.next_u64() % (n - i) as u64) as usize;
+            chosen.swap(i, j);
+        }
+        chosen.truncate(auto.coarse_antennas);
+        chosen.sort_unstable();
+    }
+    let sub = capture.subset(&chosen);
+    let [r_min, r_max] = auto.range_window_m;
+    let (lo, hi) = echo_ranges(&sub, [r_min, r_max]).ok_or(VolumeError::NoEcho(r_min, r_max))?;
+    let centres = sub.centres_m();
+    let extent = |k: usize| {
+        centres
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| {
+                (a.min(c[k]), b.max(c[k]))
+            })
+    };
+    let (x, y) = (extent(0), extent(1));
+    let bounds = [x.0, x.1, y.0, y.1, aperture_z - hi, aperture_z - lo];
+    let coarse = grid_for(bounds, auto.coarse_voxel_m)?;
+    let profiles = RangeProfiles::new(&sub, &coarse, pad_factor.min(8));
+    let image = backproject(&sub, &coarse, &profiles, None);
+    let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
+    let floor = auto.power_fraction as f32 * peak;
+    let [_, ny, nz] = coarse.dims;
+    let half = 0.5 * auto.coarse_voxel_m;
+    let mut region = [
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for (v, s) in image.iter().enumerate() {
+        if peak > 0.0 && s.norm() >= floor {
+            let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            for a in 0..3 {
+                region[2 * a] = region[2 * a].min(c[a] - half);
+                region[2 * a + 1] = region[2 * a + 1].max(c[a] + half);
+            }
+        }
+    }
+    if !region[0].is_finite() {
+        return Err(VolumeError::NoEcho(r_min, r_max));
+    }
+    Ok(AutoReport {
+        aperture_z_m: aperture_z,
+        echo_range_m: [lo, hi],
+        coarse_grid: coarse,
+        coarse_antennas: chosen.len(),
+        region_m: region,
+    })
+}
+
+/// One-way ranges (metres, range offset removed) whose summed echo power lies within 20 dB of
+/// the strongest inside `window_m`. The Hann window's main lobe (±1.5 range resolutions at
+/// −20 dB) is the margin.
+fn echo_ranges(capture: &Capture, window_m: [f64; 2]) -> Option<(f64, f64)> {
+    let t = capture.plan.samples_per_chirp;
+    let fft_len = 2 * t;
+    let fft = FftPlanner::<f32>::new().plan_fft_forward(fft_len);
+    let mut power = vec![0.0f64; fft_len];
+    let mut buf = vec![Complex32::new(0.0, 0.0); fft_len];
+    // A Hann window: its sidelobes (−31 dB) stay below the 20 dB cut, where a rectangular
+    // window's (−13 dB) would stretch the window by several range resolutions.
+    let hann: Vec<f32> = (0..t)
+        .map(|i| (std::f32::consts::PI * i as f32 / t as f32).sin().powi(2))
+        .collect();
+    for a in 0..capture.antennas() {
+        buf.fill(Complex32::new(0.0, 0.0));
+        for ((b, h), w) in buf.iter_mut().zip(capture.chirp(a)).zip(&hann) {
+            *b = h * w;
+        }
+        fft.process(&mut buf);
+        for (p, b) in power.iter_mut().zip(&buf) {
+            *p += f64::from(b.norm_sqr());
+        }
+    }
+    // Bin k holds round trip k·c/(Δf·L); a negative step mirrors the spectrum.
+    let step = capture.plan.frequency_step_hz;
+    let range_of = |k: usize| {
+        let signed = if step > 0.0 {
+            k as f64
+        } else {
+            -(k as f64) + fft_len as f64
+        };
+        0.5 * (signed * SPEED_OF_LIGHT_M_PER_S / (step.abs() * fft_len as f64)
+            - capture.range_offset_m)
+    };
+    let inside: Vec<(f64, f64)> = (0..fft_len)
+        .map(|k| (range_of(k), power[k]))
+        .filter(|(r, _)| *r >= window_m[0] && *r <= window_m[1])
+        .collect();
+    let peak = inside.iter().map(|x| x.1).fold(0.0f64, f64::max);
+    if peak <= 0.0 {
+        return None;
+    }
+    let strong = inside.iter().filter(|x| x.1 >= 0.01 * peak);
+    let (lo, hi) = strong.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+        (a.min(x.0), b.max(x.0))
+    });
+    Some((lo, hi))
+}
