@@ -13,7 +13,8 @@
 //! - [`geometry`]: triangle meshes, their file formats (STL, OBJ, PLY), primitives and a BVH.
 //! - [`signal`]: the FMCW tone synthesis and the seeded noise generator shared by every model.
 //! - [`sim`]: scenes and the physical-optics forward simulator that turns a scene into a capture.
-//! - [`recon`]: the mmNorm reconstruction (so far: the mask's Li threshold and its 6-connected components).
+//! - [`recon`]: the mmNorm reconstruction (volume, image, normals, mask, RSDF, isosurface) and the
+//!   backprojection and interferometric baselines.
 //! - [`eval`]: the paper's metrics (F-score, point, position and normal errors).
 //! - [`preview`]: PNG pictures for people.
 //! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.

@@ -5,7 +5,7 @@ mod cli;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
-use mmnormd::recon::config::{Isosurface, Method, VolumeSpec};
+use mmnormd::recon::config::{Isosurface, VolumeSpec};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -75,9 +75,10 @@ enum Command {
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
-        /// Reconstruction method [default: mmnorm, or recon.toml's].
+        /// Reconstruction method [default: mmnorm, or recon.toml's]; `all` runs the three from
+        /// one image into OUT/mmnorm, OUT/backprojection and OUT/interferometric.
         #[arg(long, value_enum)]
-        method: Option<Method>,
+        method: Option<cli::reconstruct::MethodChoice>,
         /// How mmNorm picks each component's isosurface [default: optimized].
         #[arg(long, value_enum)]
         isosurface: Option<Isosurface>,

@@ -7,12 +7,22 @@ use mmnormd::geometry::ply::{self, Column};
 use mmnormd::preview::ScalarImage;
 use mmnormd::recon::config::{Isosurface, Method, VolumeSpec};
 use mmnormd::recon::image::VoxelGrid;
-use mmnormd::recon::{ReconConfig, Reconstruction, reconstruct};
+use mmnormd::recon::{ReconConfig, Reconstruction, image_volume, reconstruct_imaged};
 use serde_json::json;
+
+/// `--method`: one method, or all three from one image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodChoice {
+    Mmnorm,
+    Backprojection,
+    Interferometric,
+    /// All three from one image, into OUT/mmnorm, OUT/backprojection and OUT/interferometric.
+    All,
+}
 
 /// Command-line choices that override `recon.toml`.
 pub struct Overrides {
-    pub method: Option<Method>,
+    pub method: Option<MethodChoice>,
     pub isosurface: Option<Isosurface>,
     pub voxel_mm: Option<f64>,
     pub volume: Option<VolumeSpec>,
@@ -34,9 +44,18 @@ pub fn run(
         }
         None => ReconConfig::default(),
     };
-    if let Some(m) = overrides.method {
-        config.method = m;
-    }
+    let methods = match overrides.method {
+        None => vec![config.method],
+        Some(MethodChoice::Mmnorm) => vec![Method::Mmnorm],
+        Some(MethodChoice::Backprojection) => vec![Method::Backprojection],
+        Some(MethodChoice::Interferometric) => vec![Method::Interferometric],
+        Some(MethodChoice::All) => vec![
+            Method::Mmnorm,
+            Method::Backprojection,
+            Method::Interferometric,
+        ],
+    };
+    let nested = methods.len() > 1;
     if let Some(i) = overrides.isosurface {
         config.isosurface = i;
     }
@@ -49,16 +68,58 @@ pub fn run(
     config
         .validate()
         .map_err(|e| anyhow::anyhow!("{e} (--voxel-mm is in millimetres)"))?;
-    if out.join("points.ply").exists() && !force {
+    let dir_of = |m: Method| {
+        if nested {
+            out.join(method_name(m))
+        } else {
+            out.to_path_buf()
+        }
+    };
+    if let Some(d) = methods
+        .iter()
+        .map(|&m| dir_of(m))
+        .find(|d| d.join("points.ply").exists())
+        && !force
+    {
         bail!(
             "{} already holds a reconstruction; pass --force to replace it",
-            out.display()
+            d.display()
         );
     }
     let capture = read_capture_dir(capture_dir)?;
-    let recon = reconstruct(&capture, &config, quiet)?;
+    let imaged = image_volume(&capture, &config, quiet)?;
+    for method in methods {
+        config.method = method;
+        let dir = dir_of(method);
+        match reconstruct_imaged(&capture, &config, &imaged, quiet) {
+            Ok(recon) => write_outputs(capture_dir, &dir, &config, &recon)?,
+            // With several methods, one failing (say, no component for mmNorm) does not discard
+            // the others.
+            Err(e) if nested => {
+                tracing::error!("{}: {e}", method_name(method));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(())
+}
+
+fn method_name(m: Method) -> &'static str {
+    match m {
+        Method::Mmnorm => "mmnorm",
+        Method::Backprojection => "backprojection",
+        Method::Interferometric => "interferometric",
+    }
+}
+
+fn write_outputs(
+    capture_dir: &Path,
+    out: &Path,
+    config: &ReconConfig,
+    recon: &Reconstruction,
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    write_points(&out.join("points.ply"), &recon)?;
+    write_points(&out.join("points.ply"), recon)?;
     let summary = json!({
         "mmnormd_version": env!("CARGO_PKG_VERSION"),
         "capture": capture_dir.display().to_string(),
@@ -68,7 +129,7 @@ pub fn run(
     let mut text = serde_json::to_string_pretty(&summary)?;
     text.push('\n');
     write_atomically(&out.join("summary.json"), text.as_bytes())?;
-    write_previews(out, &recon)?;
+    write_previews(out, recon)?;
     let s = &recon.summary;
     let stages: Vec<String> = s
         .stage_s
@@ -76,10 +137,10 @@ pub fn run(
         .map(|(n, t)| format!("{n} {t:.1} s"))
         .collect();
     println!(
-        "wrote {}: {} points ({:?}), {} component(s); {}",
+        "wrote {}: {} points ({}), {} component(s); {}",
         out.display(),
         s.points,
-        config.method,
+        method_name(config.method),
         s.components.len(),
         stages.join(", ")
     );

@@ -210,8 +210,8 @@ impl Default for ReconConfig {
             li_exponents: vec![2.0, 2.5, 3.5, 4.0],
             li_max_iterations: 1000,
             max_mask_box_m3: 0.03,
-            min_component_m3: 0.03 * 0.03 * 0.04,
-            fallback_component_m3: 0.015 * 0.015 * 0.02,
+            min_component_m3: 3.6e-5,
+            fallback_component_m3: 4.5e-6,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
             auto_volume: AutoVolume::default(),
@@ -428,6 +428,21 @@ mod tests {
         );
         assert_eq!(c.optimisation.seed, 7);
         assert_eq!(c.optimisation.antennas, 50);
+    }
+
+    #[test]
+    fn the_readme_lists_the_defaults() {
+        let readme = include_str!("../../README.md");
+        let start = readme
+            .find("```toml\nmethod = ")
+            .map(|i| i + "```toml\n".len())
+            .expect("the README has the default recon.toml");
+        let end = start + readme[start..].find("```").unwrap();
+        let parsed = ReconConfig::parse(&readme[start..end]).unwrap();
+        assert_eq!(
+            serde_json::to_value(&parsed).unwrap(),
+            serde_json::to_value(ReconConfig::default()).unwrap()
+        );
     }
 
     #[test]

@@ -28,4 +28,4 @@ pub mod trace;
 pub mod volume;
 
 pub use config::ReconConfig;
-pub use pipeline::{Reconstruction, reconstruct};
+pub use pipeline::{Imaged, Reconstruction, image_volume, reconstruct, reconstruct_imaged};

@@ -23,7 +23,9 @@ pub enum Candidates {
     Displacement,
 }
 
-/// Unit normals per voxel (C order); NaN where |S| is below the threshold.
+/// Unit normals per voxel (C order); NaN where |S| is below the threshold or, when `within` is
+/// given, where it is false (each voxel's normal depends on that voxel alone, so restricting the
+/// set changes no value).
 pub fn normal_field(
     capture: &Capture,
     grid: &VoxelGrid,
@@ -31,6 +33,7 @@ pub fn normal_field(
     image: &[Complex32],
     min_fraction: f32,
     candidates: Candidates,
+    within: Option<&[bool]>,
     progress: Option<&Progress>,
 ) -> Vec<[f32; 3]> {
     let filter = MatchedFilter::new(capture, profiles);
@@ -44,7 +47,8 @@ pub fn normal_field(
             .filter_map(|k| {
                 let s = image[i * plane + k];
                 let magnitude = s.norm();
-                (magnitude > floor).then_some((k, s, magnitude))
+                let wanted = within.is_none_or(|w| w[i * plane + k]);
+                (wanted && magnitude > floor).then_some((k, s, magnitude))
             })
             .collect();
         let mut sums = vec![[0.0f32; 3]; active.len()];
@@ -106,6 +110,7 @@ mod tests {
             &image,
             min_fraction,
             Candidates::Unit,
+            None,
             None,
         );
         let [_, ny, nz] = grid.dims;

@@ -1,6 +1,8 @@
 //! The reconstruction from a capture to points: volume, image, then the chosen method.
 //!
-//! For mmNorm: normal field → mask → components → one RSDF per component → one isosurface
+//! For mmNorm: mask → normal field on the mask (the authors compute normals on every voxel above
+//! 5 % and mask afterwards; a voxel's normal depends on that voxel alone, so computing only the
+//! masked ones gives the same values for less work) → components → one RSDF per component → one isosurface
 //! constant per component → the voxel centres within half a voxel of each chosen level, with
 //! their estimated normals. (The authors keep |f − C| < 1 mm, a two-voxel shell; half a voxel
 //! gives one layer, which is all a point cloud needs.)
@@ -100,16 +102,36 @@ pub struct Reconstruction {
     pub magnitude: Vec<f32>,
 }
 
+/// The volume and its image, shared by every method.
+pub struct Imaged {
+    pub grid: VoxelGrid,
+    pub auto_volume: Option<AutoReport>,
+    pub profiles: RangeProfiles,
+    pub image: Vec<Complex32>,
+    pub magnitude: Vec<f32>,
+    /// Times of the shared stages (volume, image).
+    stages: Vec<(String, f64)>,
+}
+
 /// Runs the reconstruction `config` describes.
 pub fn reconstruct(
     capture: &Capture,
     config: &ReconConfig,
     quiet: bool,
 ) -> Result<Reconstruction, ReconError> {
+    let imaged = image_volume(capture, config, quiet)?;
+    reconstruct_imaged(capture, config, &imaged, quiet)
+}
+
+/// Validates the inputs, selects the volume and images it.
+pub fn image_volume(
+    capture: &Capture,
+    config: &ReconConfig,
+    quiet: bool,
+) -> Result<Imaged, ReconError> {
     capture.validate()?;
     config.validate()?;
     let mut stages = Stages::default();
-
     let (grid, auto_volume) = select(
         capture,
         config.volume,
@@ -129,16 +151,41 @@ pub fn reconstruct(
     let image = backproject(capture, &grid, &profiles, Some(&progress));
     progress.finish();
     let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
-    let image_peak = magnitude.iter().copied().fold(0.0f32, f32::max);
     stages.lap("image");
+    Ok(Imaged {
+        grid,
+        auto_volume,
+        profiles,
+        image,
+        magnitude,
+        stages: stages.list,
+    })
+}
 
+/// Runs `config.method` on an imaged volume (made by [`image_volume`] with the same capture
+/// and the same volume, voxel and padding settings). The summary's stage times start with the
+/// shared volume and image stages.
+pub fn reconstruct_imaged(
+    capture: &Capture,
+    config: &ReconConfig,
+    imaged: &Imaged,
+    quiet: bool,
+) -> Result<Reconstruction, ReconError> {
+    config.validate()?;
+    let mut stages = Stages {
+        list: imaged.stages.clone(),
+        ..Stages::default()
+    };
+    let grid = imaged.grid;
+    let magnitude = &imaged.magnitude;
+    let image_peak = magnitude.iter().copied().fold(0.0f32, f32::max);
     let mut summary = Summary {
         method: config.method,
         isosurface: (config.method == Method::Mmnorm).then_some(config.isosurface),
         antennas: capture.antennas(),
         samples_per_chirp: capture.plan.samples_per_chirp,
         grid,
-        auto_volume,
+        auto_volume: imaged.auto_volume.clone(),
         stage_s: Vec::new(),
         image_peak,
         mask: None,
@@ -150,7 +197,7 @@ pub fn reconstruct(
     let (points_m, normals, components) = match config.method {
         Method::Backprojection => {
             let (points, kept) =
-                backprojection_points(&magnitude, &grid, config.backprojection_fraction);
+                backprojection_points(magnitude, &grid, config.backprojection_fraction);
             let mut mask = vec![false; grid.len()];
             for &v in &kept {
                 mask[v] = true;
@@ -164,7 +211,7 @@ pub fn reconstruct(
             let (points, z_ref) = interferometric_points(
                 capture,
                 &grid,
-                &magnitude,
+                magnitude,
                 config.interferometric_subbands,
                 config.interferometric_fraction,
                 config.pad_factor,
@@ -179,9 +226,9 @@ pub fn reconstruct(
             capture,
             config,
             &grid,
-            &profiles,
-            &image,
-            &magnitude,
+            &imaged.profiles,
+            &imaged.image,
+            magnitude,
             quiet,
             &mut summary,
             &mut stages,
@@ -194,7 +241,7 @@ pub fn reconstruct(
         normals,
         components,
         summary,
-        magnitude,
+        magnitude: magnitude.clone(),
     })
 }
 
@@ -241,19 +288,6 @@ fn mmnorm(
     } else {
         Candidates::Displacement
     };
-    let progress = Progress::new("normals", grid.dims[0] as u64, quiet);
-    let normals = normal_field(
-        capture,
-        grid,
-        profiles,
-        image,
-        config.normal_floor as f32,
-        candidates_kind,
-        Some(&progress),
-    );
-    progress.finish();
-    stages.lap("normals");
-
     let mask = li_mask(
         magnitude,
         grid,
@@ -262,6 +296,21 @@ fn mmnorm(
         config.li_max_iterations,
         config.max_mask_box_m3,
     )?;
+    stages.lap("mask");
+    let progress = Progress::new("normals", grid.dims[0] as u64, quiet);
+    let normals = normal_field(
+        capture,
+        grid,
+        profiles,
+        image,
+        config.normal_floor as f32,
+        candidates_kind,
+        Some(&mask.mask),
+        Some(&progress),
+    );
+    progress.finish();
+    stages.lap("normals");
+
     let voxel_m3 = grid.voxel_m.powi(3);
     let to_voxels = |m3: f64| (m3 / voxel_m3).round() as usize;
     let with_normal: Vec<bool> = mask
@@ -291,7 +340,7 @@ fn mmnorm(
             fallback_m3: config.fallback_component_m3,
         });
     }
-    stages.lap("mask");
+    stages.lap("components");
 
     let count = labelled.sizes.len();
     let progress = Progress::new("rsdf", count as u64, quiet);
