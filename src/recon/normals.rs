@@ -5,8 +5,10 @@
 //! sum. The normal is the normalised vote sum. Candidates are unit vectors from v towards the
 //! antenna's virtual phase centre (TX + RX)/2, as in the paper (Eq. 1).
 //! [`Candidates::Displacement`] keeps the authors' variant instead (mmnorm-reference §3): the
-//! un-normalised displacement, which weights far antennas more. Only voxels with |S| above
-//! `min_fraction`·max|S| get a normal (the authors use 5 %); the others are NaN.
+//! un-normalised displacement, which weights far antennas more. Only the selected voxels get a
+//! normal (the authors select |S| above 5 % of max|S|; [`above_fraction`] makes that selection);
+//! the others are NaN. Each voxel's normal depends on that voxel alone, so the selection changes
+//! which values are computed, never their values.
 
 use num_complex::Complex32;
 
@@ -23,23 +25,24 @@ pub enum Candidates {
     Displacement,
 }
 
-/// Unit normals per voxel (C order); NaN where |S| is below the threshold or, when `within` is
-/// given, where it is false (each voxel's normal depends on that voxel alone, so restricting the
-/// set changes no value).
+/// The voxels whose |S| exceeds `fraction`·max|S|.
+pub fn above_fraction(image: &[Complex32], fraction: f32) -> Vec<bool> {
+    let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
+    image.iter().map(|s| s.norm() > fraction * peak).collect()
+}
+
+/// Unit normals per voxel (C order) where `selected` is true (and |S| > 0); NaN elsewhere.
 pub fn normal_field(
     capture: &Capture,
     grid: &VoxelGrid,
     profiles: &RangeProfiles,
     image: &[Complex32],
-    min_fraction: f32,
+    selected: &[bool],
     candidates: Candidates,
-    within: Option<&[bool]>,
     progress: Option<&Progress>,
 ) -> Vec<[f32; 3]> {
     let filter = MatchedFilter::new(capture, profiles);
     let centres: Vec<[f32; 3]> = (0..filter.antennas()).map(|a| filter.centre(a)).collect();
-    let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
-    let floor = min_fraction * peak;
     let plane = grid.dims[1] * grid.dims[2];
     grid.par_slabs([f32::NAN; 3], progress, |i, voxel_centres, slab| {
         // The voxels above the floor, with S and |S|.
@@ -47,8 +50,7 @@ pub fn normal_field(
             .filter_map(|k| {
                 let s = image[i * plane + k];
                 let magnitude = s.norm();
-                let wanted = within.is_none_or(|w| w[i * plane + k]);
-                (wanted && magnitude > floor).then_some((k, s, magnitude))
+                (selected[i * plane + k] && magnitude > 0.0).then_some((k, s, magnitude))
             })
             .collect();
         let mut sums = vec![[0.0f32; 3]; active.len()];
@@ -108,9 +110,8 @@ mod tests {
             &grid,
             &profiles,
             &image,
-            min_fraction,
+            &above_fraction(&image, min_fraction),
             Candidates::Unit,
-            None,
             None,
         );
         let [_, ny, nz] = grid.dims;

@@ -303,9 +303,8 @@ fn mmnorm(
         grid,
         profiles,
         image,
-        config.normal_floor as f32,
+        &mask.mask,
         candidates_kind,
-        Some(&mask.mask),
         Some(&progress),
     );
     progress.finish();
