@@ -114,8 +114,8 @@ impl Default for AutoVolume {
     fn default() -> AutoVolume {
         AutoVolume {
             range_window_m: [0.05, 1.5],
-            coarse_voxel_m: 0.004,
-            coarse_antennas: 3000,
+            coarse_voxel_m: 0.006,
+            coarse_antennas: 10000,
             power_fraction: 0.5,
             pad_m: 0.03,
         }

@@ -9,8 +9,9 @@
 //! 2. **Coarse image.** S(v) on `coarse_voxel_m` voxels over the aperture's x–y extent and the
 //!    heights those ranges allow below the aperture, from the same antenna subset. A sparse random
 //!    array has no grating lobes, unlike a decimated raster.
-//! 3. **Region.** The box around the coarse voxels with |S| ≥ `power_fraction`·max, padded by
-//!    `pad_m` (3 cm), on the fine voxel size.
+//! 3. **Region.** The box around the 6-connected blobs (of at least 27 voxels) of coarse voxels
+//!    with |S| ≥ `power_fraction`·max, padded by `pad_m` (3 cm), on the fine voxel size. Single
+//!    voxels of the random array's sidelobe floor do not stretch the box.
 //!
 //! The aperture plane is the mean height of the antennas' phase centres; the antennas look down
 //! (−z), as in every capture mmnormd writes.
@@ -18,11 +19,15 @@
 use num_complex::Complex32;
 use rustfft::FftPlanner;
 
+use super::components::label_6;
 use super::config::{AutoVolume, VolumeSpec};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::signal::Rng;
+
+/// Smallest 6-connected blob of strong coarse voxels that counts as an object (3×3×3).
+const MIN_BLOB_VOXELS: usize = 27;
 
 /// The largest fine grid accepted, voxels (about 1.3 GB of image and normals).
 pub const MAX_VOXELS: usize = 60_000_000;
@@ -177,6 +182,19 @@ fn find_region(
     let image = backproject(&sub, &coarse, &profiles, None);
     let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
     let floor = auto.power_fraction as f32 * peak;
+    let strong: Vec<bool> = image
+        .iter()
+        .map(|s| peak > 0.0 && s.norm() >= floor)
+        .collect();
+    // A sparse random array leaves a noise-like sidelobe floor whose highest voxels can cross
+    // the threshold one by one; objects are blobs. Keep the 6-connected blobs of at least
+    // MIN_BLOB_VOXELS, or the largest one if none is that big.
+    let mut blobs = label_6(&strong, coarse.dims, MIN_BLOB_VOXELS);
+    if blobs.sizes.is_empty() {
+        let all = label_6(&strong, coarse.dims, 1);
+        let largest = all.sizes.iter().copied().max().unwrap_or(0);
+        blobs = label_6(&strong, coarse.dims, largest.max(1));
+    }
     let [_, ny, nz] = coarse.dims;
     let half = 0.5 * auto.coarse_voxel_m;
     let mut region = [
@@ -187,8 +205,8 @@ fn find_region(
         f64::INFINITY,
         f64::NEG_INFINITY,
     ];
-    for (v, s) in image.iter().enumerate() {
-        if peak > 0.0 && s.norm() >= floor {
+    for (v, &label) in blobs.labels.iter().enumerate() {
+        if label != 0 {
             let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
             for a in 0..3 {
                 region[2 * a] = region[2 * a].min(c[a] - half);
