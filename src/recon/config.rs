@@ -306,8 +306,8 @@ impl ReconConfig {
         check(
             "optimisation.step_wavelengths",
             o.step_wavelengths,
-            o.step_wavelengths > 0.0,
-            "must be positive",
+            (0.05..=10.0).contains(&o.step_wavelengths),
+            "must lie in [0.05, 10] wavelengths",
         )?;
         check(
             "optimisation.bound_inset_m",
