@@ -274,12 +274,8 @@ pub fn simulate_candidates(
         strong_fraction = if strong_fraction > 0.1 { 0.1 } else { 0.05 };
     }
     let qualifying_count = qualifying.len();
-    let mut rng = Rng::new(opts.seed);
     let take = opts.antennas.min(qualifying.len());
-    for i in 0..take {
-        let j = i + (rng.next_u64() % (qualifying.len() - i) as u64) as usize;
-        qualifying.swap(i, j);
-    }
+    Rng::new(opts.seed).partial_shuffle(&mut qualifying, take);
     let mut chosen = qualifying[..take].to_vec();
     chosen.sort_unstable();
 

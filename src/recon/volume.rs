@@ -155,12 +155,7 @@ fn find_region(
     let n = capture.antennas();
     let mut chosen: Vec<usize> = (0..n).collect();
     if n > auto.coarse_antennas {
-        let mut rng = Rng::new(0x766f_6c75_6d65);
-        // Partial Fisher–Yates: the first `coarse_antennas` entries are a uniform sample.
-        for i in 0..auto.coarse_antennas {
-            let j = i + (rng.next_u64() % (n - i) as u64) as usize;
-            chosen.swap(i, j);
-        }
+        Rng::new(0x766f_6c75_6d65).partial_shuffle(&mut chosen, auto.coarse_antennas);
         chosen.truncate(auto.coarse_antennas);
         chosen.sort_unstable();
     }

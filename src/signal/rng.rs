@@ -49,6 +49,16 @@ impl Rng {
         result
     }
 
+    /// Moves a uniform random sample of `k` items (without replacement) to the front of `items`
+    /// (partial Fisher–Yates); `k` is clamped to the length.
+    pub fn partial_shuffle<T>(&mut self, items: &mut [T], k: usize) {
+        let n = items.len();
+        for i in 0..k.min(n) {
+            let j = i + (self.next_u64() % (n - i) as u64) as usize;
+            items.swap(i, j);
+        }
+    }
+
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
