@@ -61,9 +61,7 @@ pub fn run(dir: &Path, png: Option<&Path>, gate: Option<(f64, f64)>) -> Result<(
     {
         bail!("--gate {lo},{hi}: no range bin of this capture falls between {lo} m and {hi} m");
     }
-    let hann: Vec<f32> = (0..t)
-        .map(|k| (0.5 - 0.5 * (std::f64::consts::TAU * k as f64 / t as f64).cos()) as f32)
-        .collect();
+    let hann = mmnormd::signal::hann_window(t);
     let power_db: Vec<f32> = (0..n)
         .into_par_iter()
         .map_init(

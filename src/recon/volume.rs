@@ -24,7 +24,7 @@ use super::config::{AutoVolume, VolumeSpec};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
-use crate::signal::Rng;
+use crate::signal::{Rng, hann_window};
 
 /// Smallest 6-connected blob of strong coarse voxels that counts as an object (3×3×3).
 const MIN_BLOB_VOXELS: usize = 27;
@@ -232,9 +232,7 @@ fn echo_ranges(capture: &Capture, window_m: [f64; 2]) -> Option<(f64, f64)> {
     let mut buf = vec![Complex32::new(0.0, 0.0); fft_len];
     // A Hann window: its sidelobes (−31 dB) stay below the 20 dB cut, where a rectangular
     // window's (−13 dB) would stretch the window by several range resolutions.
-    let hann: Vec<f32> = (0..t)
-        .map(|i| (std::f32::consts::PI * i as f32 / t as f32).sin().powi(2))
-        .collect();
+    let hann = hann_window(t);
     for a in 0..capture.antennas() {
         buf.fill(Complex32::new(0.0, 0.0));
         for ((b, h), w) in buf.iter_mut().zip(capture.chirp(a)).zip(&hann) {

@@ -9,3 +9,11 @@ mod tones;
 
 pub use rng::Rng;
 pub use tones::ToneAccumulator;
+
+/// The periodic Hann window of length `t`, `½ − ½·cos(2πk/t)`: range sidelobes at −31 dB instead
+/// of a rectangular window's −13 dB, coherent gain ½.
+pub fn hann_window(t: usize) -> Vec<f32> {
+    (0..t)
+        .map(|k| (0.5 - 0.5 * (std::f64::consts::TAU * k as f64 / t as f64).cos()) as f32)
+        .collect()
+}
