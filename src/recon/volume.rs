@@ -184,12 +184,10 @@ fn find_region(
     // A sparse random array leaves a noise-like sidelobe floor whose highest voxels can cross
     // the threshold one by one; objects are blobs. Keep the 6-connected blobs of at least
     // MIN_BLOB_VOXELS, or the largest one if none is that big.
-    let mut blobs = label_6(&strong, coarse.dims, MIN_BLOB_VOXELS);
-    if blobs.sizes.is_empty() {
-        let all = label_6(&strong, coarse.dims, 1);
-        let largest = all.sizes.iter().copied().max().unwrap_or(0);
-        blobs = label_6(&strong, coarse.dims, largest.max(1));
-    }
+    let blobs = label_6(&strong, coarse.dims, 1);
+    let largest = blobs.sizes.iter().copied().max().unwrap_or(0);
+    let min_size = MIN_BLOB_VOXELS.min(largest);
+    let kept = |label: u32| label != 0 && blobs.sizes[label as usize - 1] >= min_size;
     let [_, ny, nz] = coarse.dims;
     let half = 0.5 * auto.coarse_voxel_m;
     let mut region = [
@@ -201,7 +199,7 @@ fn find_region(
         f64::NEG_INFINITY,
     ];
     for (v, &label) in blobs.labels.iter().enumerate() {
-        if label != 0 {
+        if kept(label) {
             let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
             for a in 0..3 {
                 region[2 * a] = region[2 * a].min(c[a] - half);
