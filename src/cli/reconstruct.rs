@@ -92,7 +92,7 @@ pub fn run(
         config.method = method;
         let dir = dir_of(method);
         match reconstruct_imaged(&capture, &config, &imaged, quiet) {
-            Ok(recon) => write_outputs(capture_dir, &dir, &config, &recon)?,
+            Ok(recon) => write_outputs(capture_dir, &dir, &config, &recon, &imaged.magnitude)?,
             // With several methods, one failing (say, no component for mmNorm) does not discard
             // the others.
             Err(e) if nested => {
@@ -117,6 +117,7 @@ fn write_outputs(
     out: &Path,
     config: &ReconConfig,
     recon: &Reconstruction,
+    magnitude: &[f32],
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_points(&out.join("points.ply"), recon)?;
@@ -129,7 +130,7 @@ fn write_outputs(
     let mut text = serde_json::to_string_pretty(&summary)?;
     text.push('\n');
     write_atomically(&out.join("summary.json"), text.as_bytes())?;
-    write_previews(out, recon)?;
+    write_previews(out, recon, magnitude)?;
     let s = &recon.summary;
     let stages: Vec<String> = s
         .stage_s
@@ -172,8 +173,8 @@ fn write_points(path: &Path, recon: &Reconstruction) -> Result<()> {
 }
 
 /// Top (x–y, colour = height) and side (x–z, colour = point count) views of the points, and
-/// max-projections of |S| in dB along z and along y.
-fn write_previews(out: &Path, recon: &Reconstruction) -> Result<()> {
+/// max-projections of `magnitude` (|S| on the summary's grid) in dB along z and along y.
+fn write_previews(out: &Path, recon: &Reconstruction, magnitude: &[f32]) -> Result<()> {
     let g = &recon.summary.grid;
     let zoom = (400 / g.dims[0].max(g.dims[1]).max(1)).clamp(1, 8);
     let cells = |p: &[f64; 3], u: usize, v: usize| {
@@ -224,7 +225,7 @@ fn write_previews(out: &Path, recon: &Reconstruction) -> Result<()> {
     }
     .write_png(&out.join("points_side.png"), 0.0, most, zoom)?;
     for (name, axis) in [("image_max_z.png", 2usize), ("image_max_y.png", 1)] {
-        max_projection(&recon.magnitude, g, axis).write_png(&out.join(name), -30.0, 0.0, zoom)?;
+        max_projection(magnitude, g, axis).write_png(&out.join(name), -30.0, 0.0, zoom)?;
     }
     Ok(())
 }

@@ -98,8 +98,6 @@ pub struct Reconstruction {
     /// Component per point (1-based; 0 where the method has no components).
     pub components: Vec<u32>,
     pub summary: Summary,
-    /// |S| on the grid, for previews.
-    pub magnitude: Vec<f32>,
 }
 
 /// The volume and its image, shared by every method.
@@ -241,7 +239,6 @@ pub fn reconstruct_imaged(
         normals,
         components,
         summary,
-        magnitude: magnitude.clone(),
     })
 }
 
