@@ -93,16 +93,15 @@ pub fn coordinate_descent(
     cost: impl Fn(&[usize]) -> f64,
     max_sweeps: usize,
 ) -> (Vec<usize>, usize) {
-    let argmin = |n: usize, f: &dyn Fn(usize) -> f64| {
-        (0..n)
-            .map(|c| (c, f(c)))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map_or(0, |x| x.0)
+    let argmin = |values: &[f64]| {
+        (0..values.len())
+            .min_by(|&a, &b| values[a].total_cmp(&values[b]))
+            .unwrap_or(0)
     };
     let mut choice: Vec<usize> = counts
         .iter()
         .enumerate()
-        .map(|(n, &k)| argmin(k, &|c| alone(n, c)))
+        .map(|(n, &k)| argmin(&(0..k).map(|c| alone(n, c)).collect::<Vec<_>>()))
         .collect();
     if counts.len() <= 1 {
         return (choice, 0);
@@ -112,14 +111,15 @@ pub fn coordinate_descent(
         sweeps += 1;
         let mut changed = false;
         for n in 0..counts.len() {
-            let best = argmin(counts[n], &|c| {
-                let mut trial = choice.clone();
-                trial[n] = c;
-                cost(&trial)
-            });
             let mut trial = choice.clone();
-            trial[n] = best;
-            if best != choice[n] && cost(&trial) < cost(&choice) {
+            let costs: Vec<f64> = (0..counts[n])
+                .map(|c| {
+                    trial[n] = c;
+                    cost(&trial)
+                })
+                .collect();
+            let best = argmin(&costs);
+            if costs[best] < costs[choice[n]] {
                 choice[n] = best;
                 changed = true;
             }
