@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 /// Which reconstruction to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
     /// Normal field, RSDF and isosurface selection (paper §2–§4).
