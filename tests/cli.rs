@@ -361,6 +361,33 @@ fn reconstruct_writes_points_summary_and_previews_then_eval_scores_them() {
         mmnormd::geometry::ply::parse(&std::fs::read(bp.join("points.ply")).unwrap()).unwrap();
     assert!(ply.normals.is_none());
     assert!(!ply.vertices_m.is_empty());
+
+    // The ablations: `center` takes (max f + min f)/2; `weighted` lies inside the RSDF's range.
+    for iso in ["center", "weighted"] {
+        let dir_iso = dir.path().join(iso);
+        let mut a = args("mmnorm", &dir_iso);
+        a.extend(["--isosurface".to_string(), iso.to_string()]);
+        let o = run(a);
+        assert!(o.status.success(), "{}", text(&o));
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir_iso.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(summary["result"]["isosurface"], iso);
+        assert!(summary["result"]["optimisation"].is_null());
+        for c in summary["result"]["components"].as_array().unwrap() {
+            let (lo, hi, k) = (
+                c["rsdf_min_m"].as_f64().unwrap(),
+                c["rsdf_max_m"].as_f64().unwrap(),
+                c["constant_m"].as_f64().unwrap(),
+            );
+            if iso == "center" {
+                assert!((k - 0.5 * (lo + hi)).abs() < 1e-12, "{c}");
+            } else {
+                assert!(k > lo && k < hi, "{c}");
+            }
+            assert!(c["points"].as_u64().unwrap() > 0, "{c}");
+        }
+    }
 }
 
 #[test]
