@@ -16,15 +16,18 @@
 //! - [`recon`]: the mmNorm reconstruction (volume, image, normals, mask, RSDF, isosurface) and the
 //!   backprojection and interferometric baselines.
 //! - [`eval`]: the paper's metrics (F-score, point, position and normal errors).
-//! - [`preview`]: PNG pictures for people.
+//! - [`preview`] and [`plot`]: PNG pictures and charts for people.
+//! - [`bench`]: the accuracy benchmark (the paper's evaluation over a suite of simulated scenes).
 //! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.
 //!
 //! The command-line front end lives in the binary (`src/main.rs` and `src/cli/`); it is the only
 //! place that uses `anyhow`. Library modules return their own `thiserror` enums.
 
+pub mod bench;
 pub mod capture;
 pub mod eval;
 pub mod geometry;
+pub mod plot;
 pub mod preview;
 pub mod progress;
 pub mod radar;

@@ -27,7 +27,8 @@ const VIRIDIS: [[f32; 3]; 5] = [
     [253.0, 231.0, 37.0],
 ];
 
-fn colour(x: f32) -> [u8; 3] {
+/// The viridis colour of `x` in 0…1 (clamped).
+pub fn viridis(x: f32) -> [u8; 3] {
     let x = x.clamp(0.0, 1.0) * 4.0;
     let i = (x.floor() as usize).min(3);
     let f = x - i as f32;
@@ -58,7 +59,7 @@ impl ScalarImage {
                 let c = if v.is_nan() {
                     [40, 40, 40]
                 } else {
-                    colour((v - lo) / span)
+                    viridis((v - lo) / span)
                 };
                 rgb[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&c);
             }

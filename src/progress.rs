@@ -59,6 +59,15 @@ impl Progress {
         }
     }
 
+    /// Shows `message` beside the bar; off a terminal it is logged at debug level.
+    pub fn set_message(&self, message: &str) {
+        if let Some(bar) = &self.bar {
+            bar.set_message(format!("{} {message}", self.label));
+        } else if self.total > 0 {
+            tracing::debug!("{}: {message}", self.label);
+        }
+    }
+
     /// Ends the stage and returns its wall time in seconds.
     pub fn finish(self) -> f64 {
         if let Some(bar) = &self.bar {

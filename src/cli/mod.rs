@@ -1,6 +1,7 @@
 //! Subcommand implementations of the `mmnormd` binary. They parse nothing (clap does), call the
 //! library and report; errors become `anyhow` with context.
 
+pub mod bench;
 pub mod eval;
 pub mod inspect;
 pub mod profile;

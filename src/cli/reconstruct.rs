@@ -3,7 +3,6 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use mmnormd::capture::dir::write_atomically;
 use mmnormd::capture::read_capture_dir;
-use mmnormd::geometry::ply::{self, Column};
 use mmnormd::preview::ScalarImage;
 use mmnormd::recon::config::{Isosurface, Method, VolumeSpec};
 use mmnormd::recon::image::VoxelGrid;
@@ -120,7 +119,7 @@ fn write_outputs(
     magnitude: &[f32],
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    write_points(&out.join("points.ply"), recon)?;
+    write_atomically(&out.join("points.ply"), &recon.encode_ply())?;
     let summary = json!({
         "mmnormd_version": env!("CARGO_PKG_VERSION"),
         "capture": capture_dir.display().to_string(),
@@ -145,30 +144,6 @@ fn write_outputs(
         s.components.len(),
         stages.join(", ")
     );
-    Ok(())
-}
-
-/// Binary little-endian PLY: x y z, nx ny nz where the method has normals, component.
-fn write_points(path: &Path, recon: &Reconstruction) -> Result<()> {
-    let col = |k: usize| recon.points_m.iter().map(|p| p[k]).collect::<Vec<f64>>();
-    let mut columns = vec![
-        Column::F64("x", col(0)),
-        Column::F64("y", col(1)),
-        Column::F64("z", col(2)),
-    ];
-    if let Some(normals) = &recon.normals {
-        for (k, name) in ["nx", "ny", "nz"].into_iter().enumerate() {
-            columns.push(Column::F32(
-                name,
-                normals.iter().map(|n| n[k] as f32).collect(),
-            ));
-        }
-    }
-    columns.push(Column::I32(
-        "component",
-        recon.components.iter().map(|&c| c as i32).collect(),
-    ));
-    write_atomically(path, &ply::encode(&columns, &[]))?;
     Ok(())
 }
 

@@ -17,12 +17,14 @@
 //! An empty reconstruction scores F = 0; the truth scored against itself scores F = 1.
 
 mod nearest;
+pub mod normals;
 
 pub use nearest::NearestNeighbours;
+pub use normals::estimate_normals;
 
 /// The scores of one reconstruction. `None` where a metric is undefined (no points, or no
 /// normals on either side).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Metrics {
     pub f_score: f64,
     pub precision: f64,
@@ -88,6 +90,18 @@ pub fn diameter(points: &[[f64; 3]]) -> f64 {
     best.sqrt()
 }
 
+/// Each reconstructed point's own scores, for distributions pooled over many reconstructions
+/// (the paper's Fig. 12c, 13, 14 and 15 pool points, not objects).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointScores {
+    /// Distance to the nearest truth point, metres.
+    pub error_m: Vec<f64>,
+    /// `error_m` over the truth's diameter.
+    pub relative: Vec<f64>,
+    /// |cos| against the nearest truth point's normal; NaN where a point has no normal.
+    pub normal_cos: Option<Vec<f64>>,
+}
+
 /// Scores `points` (with optional unit normals) against `truth` at F-score threshold `tau_m`.
 pub fn evaluate(
     points: &[[f64; 3]],
@@ -96,6 +110,17 @@ pub fn evaluate(
     truth_normals: Option<&[[f64; 3]]>,
     tau_m: f64,
 ) -> Metrics {
+    evaluate_points(points, normals, truth, truth_normals, tau_m).0
+}
+
+/// [`evaluate`], with the per-point scores behind the metrics.
+pub fn evaluate_points(
+    points: &[[f64; 3]],
+    normals: Option<&[[f64; 3]]>,
+    truth: &[[f64; 3]],
+    truth_normals: Option<&[[f64; 3]]>,
+    tau_m: f64,
+) -> (Metrics, PointScores) {
     let empty = Metrics {
         f_score: 0.0,
         precision: 0.0,
@@ -111,7 +136,7 @@ pub fn evaluate(
         truth_points: truth.len(),
     };
     if points.is_empty() || truth.is_empty() {
-        return empty;
+        return (empty, PointScores::default());
     }
     let truth_index = NearestNeighbours::new(truth, tau_m);
     let nearest: Vec<(usize, f64)> = points.iter().map(|p| truth_index.nearest(p)).collect();
@@ -163,7 +188,7 @@ pub fn evaluate(
             })
             .collect()
     });
-    Metrics {
+    let metrics = Metrics {
         f_score,
         precision,
         recall,
@@ -175,7 +200,17 @@ pub fn evaluate(
         normal_cos_median: cosines.as_ref().and_then(|c| quantile(c, 0.5)),
         normal_cos_p25: cosines.as_ref().and_then(|c| quantile(c, 0.25)),
         ..empty
-    }
+    };
+    let relative = errors
+        .iter()
+        .map(|e| if d_g > 0.0 { e / d_g } else { f64::NAN })
+        .collect();
+    let scores = PointScores {
+        error_m: errors,
+        relative,
+        normal_cos: cosines,
+    };
+    (metrics, scores)
 }
 
 #[cfg(test)]

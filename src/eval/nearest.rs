@@ -98,12 +98,67 @@ impl<'a> NearestNeighbours<'a> {
         }
         false
     }
+
+    /// The indices and distances of every point closer than `radius_m` to `q`, nearest first.
+    pub fn neighbours_within(&self, q: &[f64; 3], radius_m: f64) -> Vec<(usize, f64)> {
+        let c = q.map(|x| (x / self.cell_m).floor() as i64);
+        let reach = (radius_m / self.cell_m).ceil() as i64;
+        let mut found = Vec::new();
+        for dx in -reach..=reach {
+            for dy in -reach..=reach {
+                for dz in -reach..=reach {
+                    if let Some(bucket) = self.buckets.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) {
+                        found.extend(
+                            bucket
+                                .iter()
+                                .map(|&i| (i as usize, self.distance(i, q)))
+                                .filter(|&(_, d)| d < radius_m),
+                        );
+                    }
+                }
+            }
+        }
+        found.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        found
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::signal::Rng;
+
+    #[test]
+    fn radius_search_agrees_with_brute_force() {
+        let mut rng = Rng::new(4);
+        let pts: Vec<[f64; 3]> = (0..400)
+            .map(|_| {
+                [
+                    rng.uniform() * 0.1,
+                    rng.uniform() * 0.1,
+                    rng.uniform() * 0.02,
+                ]
+            })
+            .collect();
+        let nn = NearestNeighbours::new(&pts, 0.004);
+        for q in pts.iter().take(50) {
+            let got = nn.neighbours_within(q, 0.011);
+            let mut want: Vec<(usize, f64)> = pts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    (
+                        i,
+                        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2))
+                            .sqrt(),
+                    )
+                })
+                .filter(|&(_, d)| d < 0.011)
+                .collect();
+            want.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            assert_eq!(got, want);
+        }
+    }
 
     #[test]
     fn grid_search_agrees_with_brute_force() {

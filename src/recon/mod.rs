@@ -28,4 +28,6 @@ pub mod trace;
 pub mod volume;
 
 pub use config::ReconConfig;
-pub use pipeline::{Imaged, Reconstruction, image_volume, reconstruct, reconstruct_imaged};
+pub use pipeline::{
+    Imaged, Reconstruction, image_volume, reconstruct, reconstruct_imaged, reconstruct_isosurfaces,
+};

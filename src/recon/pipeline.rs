@@ -25,6 +25,7 @@ use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
 use super::trace::SampledField;
 use super::volume::{AutoReport, VolumeError, select};
 use crate::capture::{Capture, InvalidCapture};
+use crate::geometry::ply::{self, Column};
 use crate::progress::Progress;
 
 /// Why a reconstruction failed.
@@ -100,6 +101,32 @@ pub struct Reconstruction {
     pub summary: Summary,
 }
 
+impl Reconstruction {
+    /// The points as binary little-endian PLY: `x y z` (double), `nx ny nz` (float) where the
+    /// method has normals, and `component` (int).
+    pub fn encode_ply(&self) -> Vec<u8> {
+        let col = |k: usize| self.points_m.iter().map(|p| p[k]).collect::<Vec<f64>>();
+        let mut columns = vec![
+            Column::F64("x", col(0)),
+            Column::F64("y", col(1)),
+            Column::F64("z", col(2)),
+        ];
+        if let Some(normals) = &self.normals {
+            for (k, name) in ["nx", "ny", "nz"].into_iter().enumerate() {
+                columns.push(Column::F32(
+                    name,
+                    normals.iter().map(|n| n[k] as f32).collect(),
+                ));
+            }
+        }
+        columns.push(Column::I32(
+            "component",
+            self.components.iter().map(|&c| c as i32).collect(),
+        ));
+        ply::encode(&columns, &[])
+    }
+}
+
 /// The volume and its image, shared by every method.
 pub struct Imaged {
     pub grid: VoxelGrid,
@@ -170,28 +197,9 @@ pub fn reconstruct_imaged(
     quiet: bool,
 ) -> Result<Reconstruction, ReconError> {
     config.validate()?;
-    let mut stages = Stages {
-        list: imaged.stages.clone(),
-        ..Stages::default()
-    };
+    let (mut summary, mut stages) = start_summary(capture, config, imaged);
     let grid = imaged.grid;
     let magnitude = &imaged.magnitude;
-    let image_peak = magnitude.iter().copied().fold(0.0f32, f32::max);
-    let mut summary = Summary {
-        method: config.method,
-        isosurface: (config.method == Method::Mmnorm).then_some(config.isosurface),
-        antennas: capture.antennas(),
-        samples_per_chirp: capture.plan.samples_per_chirp,
-        grid,
-        auto_volume: imaged.auto_volume.clone(),
-        stage_s: Vec::new(),
-        image_peak,
-        mask: None,
-        components: Vec::new(),
-        optimisation: None,
-        interferometric_reference_z_m: None,
-        points: 0,
-    };
     let (points_m, normals, components) = match config.method {
         Method::Backprojection => {
             let (points, kept) =
@@ -242,6 +250,93 @@ pub fn reconstruct_imaged(
     })
 }
 
+/// Runs mmNorm once up to the RSDFs and then finishes it with each of `isosurfaces` (the
+/// optimisation and the §6.3.2 ablations share everything before the choice of constants).
+/// Each reconstruction's stage times hold the shared stages and then its own.
+pub fn reconstruct_isosurfaces(
+    capture: &Capture,
+    config: &ReconConfig,
+    imaged: &Imaged,
+    isosurfaces: &[Isosurface],
+    quiet: bool,
+) -> Result<Vec<Reconstruction>, ReconError> {
+    config.validate()?;
+    let config = ReconConfig {
+        method: Method::Mmnorm,
+        ..config.clone()
+    };
+    let (mut shared_summary, mut stages) = start_summary(capture, &config, imaged);
+    let grid = imaged.grid;
+    let fields = mmnorm_fields(
+        capture,
+        &config,
+        &grid,
+        &imaged.profiles,
+        &imaged.image,
+        &imaged.magnitude,
+        quiet,
+        &mut shared_summary,
+        &mut stages,
+    )?;
+    let shared_stages = stages.list.clone();
+    isosurfaces
+        .iter()
+        .map(|&isosurface| {
+            let mut summary = shared_summary.clone();
+            summary.isosurface = Some(isosurface);
+            let mut own = Stages {
+                list: shared_stages.clone(),
+                ..Stages::default()
+            };
+            let (points_m, normals, components) = mmnorm_points(
+                capture,
+                &config,
+                isosurface,
+                &grid,
+                &fields,
+                &imaged.magnitude,
+                quiet,
+                &mut summary,
+                &mut own,
+            )?;
+            summary.stage_s = own.list;
+            summary.points = points_m.len();
+            Ok(Reconstruction {
+                points_m,
+                normals,
+                components,
+                summary,
+            })
+        })
+        .collect()
+}
+
+/// An empty summary for `config` on `imaged`, and a stage clock that starts with the shared
+/// volume and image stages.
+fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (Summary, Stages) {
+    let stages = Stages {
+        list: imaged.stages.clone(),
+        ..Stages::default()
+    };
+    let image_peak = imaged.magnitude.iter().copied().fold(0.0f32, f32::max);
+    let summary = Summary {
+        method: config.method,
+        isosurface: (config.method == Method::Mmnorm).then_some(config.isosurface),
+        antennas: capture.antennas(),
+        samples_per_chirp: capture.plan.samples_per_chirp,
+        grid: imaged.grid,
+        auto_volume: imaged.auto_volume.clone(),
+        stage_s: Vec::new(),
+        image_peak,
+        mask: None,
+        components: Vec::new(),
+        optimisation: None,
+        interferometric_reference_z_m: None,
+        points: 0,
+    };
+    (summary, stages)
+}
+
 /// Wall time per stage.
 struct Stages {
     clock: Instant,
@@ -268,6 +363,16 @@ impl Stages {
 
 type Points = (Vec<[f64; 3]>, Option<Vec<[f64; 3]>>, Vec<u32>);
 
+/// What every isosurface choice shares: the normal field, the components and their RSDFs.
+struct Fields {
+    normals: Vec<[f32; 3]>,
+    sizes: Vec<usize>,
+    fields: Vec<SampledField>,
+    ranges: Vec<(f64, f64)>,
+    candidate_sets: Vec<Vec<f64>>,
+    step_m: f64,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn mmnorm(
     capture: &Capture,
@@ -280,6 +385,34 @@ fn mmnorm(
     summary: &mut Summary,
     stages: &mut Stages,
 ) -> Result<Points, ReconError> {
+    let fields = mmnorm_fields(
+        capture, config, grid, profiles, image, magnitude, quiet, summary, stages,
+    )?;
+    mmnorm_points(
+        capture,
+        config,
+        config.isosurface,
+        grid,
+        &fields,
+        magnitude,
+        quiet,
+        summary,
+        stages,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn mmnorm_fields(
+    capture: &Capture,
+    config: &ReconConfig,
+    grid: &VoxelGrid,
+    profiles: &RangeProfiles,
+    image: &[Complex32],
+    magnitude: &[f32],
+    quiet: bool,
+    summary: &mut Summary,
+    stages: &mut Stages,
+) -> Result<Fields, ReconError> {
     let candidates_kind = if config.unit_candidates {
         Candidates::Unit
     } else {
@@ -369,31 +502,56 @@ fn mmnorm(
             })
     };
     let ranges: Vec<(f64, f64)> = fields.iter().map(range).collect();
-    let step = config.optimisation.step_wavelengths * capture.plan.first_wavelength_m();
+    let step_m = config.optimisation.step_wavelengths * capture.plan.first_wavelength_m();
     let candidate_sets: Vec<Vec<f64>> = ranges
         .iter()
-        .map(|&(lo, hi)| candidates(lo, hi, step, config.optimisation.bound_inset_m))
+        .map(|&(lo, hi)| candidates(lo, hi, step_m, config.optimisation.bound_inset_m))
         .collect();
-    let constants: Vec<f64> = match config.isosurface {
+    Ok(Fields {
+        normals,
+        sizes: labelled.sizes,
+        fields,
+        ranges,
+        candidate_sets,
+        step_m,
+    })
+}
+
+/// Chooses each component's constant by `isosurface` and extracts the points.
+#[allow(clippy::too_many_arguments)]
+fn mmnorm_points(
+    capture: &Capture,
+    config: &ReconConfig,
+    isosurface: Isosurface,
+    grid: &VoxelGrid,
+    shared: &Fields,
+    magnitude: &[f32],
+    quiet: bool,
+    summary: &mut Summary,
+    stages: &mut Stages,
+) -> Result<Points, ReconError> {
+    let Fields {
+        normals,
+        sizes,
+        fields,
+        ranges,
+        candidate_sets,
+        step_m,
+    } = shared;
+    let constants: Vec<f64> = match isosurface {
         Isosurface::Center => ranges
             .iter()
             .map(|&(lo, hi)| centre_constant(lo, hi))
             .collect(),
-        Isosurface::Weighted => (0..count)
+        Isosurface::Weighted => (0..fields.len())
             .map(|n| {
                 let values = component_values(grid, &fields[n], magnitude);
-                let all = candidates(ranges[n].0, ranges[n].1, step, 0.0);
+                let all = candidates(ranges[n].0, ranges[n].1, *step_m, 0.0);
                 weighted_constant(&values, &all)
             })
             .collect(),
         Isosurface::Optimized => {
-            let report = optimise(
-                capture,
-                &fields,
-                &candidate_sets,
-                &config.optimisation,
-                quiet,
-            )?;
+            let report = optimise(capture, fields, candidate_sets, &config.optimisation, quiet)?;
             let c = report.components.iter().map(|c| c.constant).collect();
             summary.optimisation = Some(report);
             c
@@ -419,7 +577,7 @@ fn mmnorm(
         }
         summary.components.push(ComponentSummary {
             component: n as u32 + 1,
-            voxels: labelled.sizes[n],
+            voxels: sizes[n],
             rsdf_min_m: ranges[n].0,
             rsdf_max_m: ranges[n].1,
             constant_m: constants[n],

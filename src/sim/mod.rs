@@ -9,9 +9,11 @@
 pub mod aperture;
 pub mod forward;
 pub mod occluder;
+pub mod output;
 pub mod scene;
 pub mod surface;
 pub mod truth;
 
 pub use forward::{SimOutput, SimStats, simulate};
+pub use output::write_simulation;
 pub use scene::{Scene, SceneError};

@@ -1,0 +1,160 @@
+//! The accuracy benchmark (`mmnormd bench accuracy`): the paper's evaluation (§6.2–§6.3) over a
+//! suite of simulated scenes.
+//!
+//! - [`suite`]: the suite file and its expansion into cases (scene × pose × condition);
+//! - [`cache`]: simulated captures cached by content hash;
+//! - [`run`]: each case simulated, imaged once, reconstructed by every method and scored,
+//!   several cases at a time within a memory budget, resumable;
+//! - [`report`]: `results.csv`, the CDF plots and `report.md` beside the paper's figures;
+//! - [`scene_png`]: one picture per case (Fig. 10 style).
+
+pub mod cache;
+pub mod report;
+pub mod run;
+pub mod scene_png;
+pub mod suite;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub use run::{CaseResult, METHODS, RunOptions};
+pub use suite::{Case, Suite, SuiteError};
+
+use crate::capture::dir::{CaptureDirError, write_atomically};
+use crate::geometry::MeshError;
+use crate::preview::PreviewError;
+use crate::recon::pipeline::ReconError;
+
+/// Why the benchmark stopped. A single case's failure does not stop it: it is reported.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Suite(#[from] SuiteError),
+    #[error(transparent)]
+    Capture(#[from] CaptureDirError),
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error(transparent)]
+    Recon(#[from] ReconError),
+    #[error(transparent)]
+    Picture(#[from] PreviewError),
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("result file: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+/// How to run a suite.
+pub struct BenchOptions {
+    /// The capture cache (`captures/`) and the per-case runs (`runs/`) [default: `OUT/work`].
+    pub work_dir: Option<PathBuf>,
+    pub jobs: usize,
+    pub memory_budget_bytes: u64,
+    /// Also write the report here, its links pointing into `OUT`.
+    pub markdown: Option<PathBuf>,
+    /// The command line, quoted in the report.
+    pub command: String,
+    /// Run nothing: report the cases an earlier run finished (the others as not run).
+    pub report_only: bool,
+    pub quiet: bool,
+}
+
+/// What a run produced.
+pub struct BenchOutcome {
+    pub results: Vec<CaseResult>,
+    pub failed_cases: Vec<(String, String)>,
+    pub wall_s: f64,
+}
+
+/// Runs `suite` into `out`: `results.csv`, `report.md`, the CDF plots, `scenes/*.png`, and under
+/// the work directory (default `OUT/work`) the capture cache and the per-case runs.
+pub fn run_suite(
+    suite: &Suite,
+    out: &Path,
+    opts: &BenchOptions,
+) -> Result<BenchOutcome, BenchError> {
+    let started = Instant::now();
+    let work = opts.work_dir.clone().unwrap_or_else(|| out.join("work"));
+    let run_opts = RunOptions {
+        cache_dir: work.join("captures"),
+        runs_dir: work.join("runs"),
+        scenes_dir: out.join("scenes"),
+        tau_m: suite.tau_m,
+        jobs: opts.jobs,
+        memory_budget_bytes: opts.memory_budget_bytes,
+        quiet: opts.quiet,
+    };
+    std::fs::create_dir_all(&run_opts.runs_dir).map_err(|source| BenchError::Io {
+        path: run_opts.runs_dir.clone(),
+        source,
+    })?;
+    let outcomes = if opts.report_only {
+        suite
+            .cases
+            .iter()
+            .map(|c| run::finished_result(c, &run_opts).ok_or_else(|| "not run yet".to_string()))
+            .collect()
+    } else {
+        run::run_cases(&suite.cases, &run_opts)
+    };
+    let mut results = Vec::new();
+    let mut failed_cases = Vec::new();
+    for (case, outcome) in suite.cases.iter().zip(outcomes) {
+        match outcome {
+            Ok(r) => results.push(r),
+            Err(e) => failed_cases.push((case.id.clone(), e)),
+        }
+    }
+    let wall_s = started.elapsed().as_secs_f64();
+    report::write_csv(&results, out)?;
+    let stats = report::gather(&results, &run_opts.runs_dir)?;
+    let plots = report::write_plots(&stats, out)?;
+    let a = suite
+        .cases
+        .first()
+        .map(|c| &c.scene.aperture)
+        .map_or(String::new(), |a| {
+            format!(
+                "{:.0}×{:.0} cm at {:.3} mm ({:?} layout)",
+                a.width_m * 100.0,
+                a.height_m * 100.0,
+                a.spacing_m * 1e3,
+                a.layout
+            )
+        });
+    let info = report::RunInfo {
+        suite: suite.path.display().to_string(),
+        description: suite.description.clone(),
+        command: opts.command.clone(),
+        aperture: a,
+        wall_s,
+        cases: suite.cases.len(),
+        failed_cases: failed_cases.clone(),
+    };
+    let md = report::report_md(&info, &results, &stats, &plots, &|f| f.to_string());
+    write_atomically(&out.join("report.md"), md.as_bytes())?;
+    if let Some(path) = &opts.markdown {
+        let prefix = relative_prefix(path, out);
+        let md = report::report_md(&info, &results, &stats, &plots, &|f| format!("{prefix}{f}"));
+        write_atomically(path, md.as_bytes())?;
+    }
+    Ok(BenchOutcome {
+        results,
+        failed_cases,
+        wall_s,
+    })
+}
+
+/// The path prefix from the directory of `file` to `dir` (both as given, relative or not).
+fn relative_prefix(file: &Path, dir: &Path) -> String {
+    let base = file.parent().unwrap_or(Path::new(""));
+    match dir.strip_prefix(base) {
+        Ok(rel) if !rel.as_os_str().is_empty() => format!("{}/", rel.display()),
+        Ok(_) => String::new(),
+        Err(_) => format!("{}/", dir.display()),
+    }
+}

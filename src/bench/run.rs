@@ -1,0 +1,390 @@
+//! Running the cases: capture (cached), one image shared by every method, mmNorm with its two
+//! ablations sharing the normal field and RSDFs, the two baselines, and the scores. Each case
+//! leaves `runs/<id>/`: the points of each method (`<method>.ply`), their per-point scores
+//! (`<method>.scores.npy`: point error, relative error, normal cosine) and, written last,
+//! `result.json`. A case whose `result.json` carries the same key is not run again, so an
+//! interrupted bench resumes where it stopped.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use sha2::Digest;
+
+use super::BenchError;
+use super::cache::capture_for;
+use super::scene_png::write_scene_png;
+use super::suite::{Case, Condition, Pose, hex};
+use crate::capture::dir::write_atomically;
+use crate::capture::npy;
+use crate::eval::{Metrics, PointScores, estimate_normals, evaluate_points};
+use crate::progress::Progress;
+use crate::recon::config::{Isosurface, Method};
+use crate::recon::{Reconstruction, image_volume, reconstruct_imaged, reconstruct_isosurfaces};
+use crate::sim::truth::{TOP_GRID_M, top_surface_with_normals};
+
+/// The methods of the paper's evaluation, in report order.
+pub const METHODS: [&str; 5] = [
+    "mmnorm",
+    "backprojection",
+    "interferometric",
+    "center",
+    "weighted",
+];
+
+/// Baseline normals (paper §6.3.1): PCA over this many nearest neighbours within this radius.
+const PCA_NEIGHBOURS: usize = 30;
+const PCA_RADIUS_M: f64 = 0.01;
+
+/// One method's outcome on one case.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MethodResult {
+    pub method: String,
+    /// None when the method failed; the report then counts it with F = 0.
+    pub metrics: Option<Metrics>,
+    pub error: Option<String>,
+    /// Where the normals came from: `mmnorm` (the vote), `pca` (estimated from the points).
+    pub normals: String,
+    pub stage_s: Vec<(String, f64)>,
+    pub total_s: f64,
+}
+
+/// One case's outcome.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CaseResult {
+    pub key: String,
+    pub id: String,
+    pub scene: String,
+    pub pose: Pose,
+    pub condition: Condition,
+    pub capture_key: String,
+    pub antennas: usize,
+    pub simulate_s: f64,
+    pub truth_points: usize,
+    pub methods: Vec<MethodResult>,
+}
+
+/// Where things go and how much may run at once.
+pub struct RunOptions {
+    pub cache_dir: PathBuf,
+    pub runs_dir: PathBuf,
+    pub scenes_dir: PathBuf,
+    pub tau_m: f64,
+    /// Cases run side by side (each also parallel inside).
+    pub jobs: usize,
+    /// Memory the concurrent cases may hold together, bytes.
+    pub memory_budget_bytes: u64,
+    pub quiet: bool,
+}
+
+/// The resume key of a case: its capture, its reconstruction settings, τ and this build.
+pub fn result_key(case: &Case, capture_key: &str, tau_m: f64) -> String {
+    let mut h = sha2::Sha256::new();
+    h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    h.update(capture_key.as_bytes());
+    h.update(
+        serde_json::to_string(&case.recon)
+            .unwrap_or_default()
+            .as_bytes(),
+    );
+    h.update(tau_m.to_le_bytes());
+    hex(&h.finalize())[..32].to_string()
+}
+
+/// A rough upper bound of one case's memory: the capture three times over (simulation,
+/// capture, range profiles) and the volume's per-voxel arrays.
+pub fn memory_estimate_bytes(case: &Case) -> u64 {
+    let a = &case.scene.aperture;
+    let along = |extent: f64| (extent / a.spacing_m + 1e-9).floor() + 1.0;
+    let per = match a.layout {
+        crate::sim::scene::Layout::Monostatic => 1.0,
+        crate::sim::scene::Layout::Iwr1443boost => 4.0,
+    };
+    let channels = along(a.width_m) * along(a.height_m) * per;
+    let capture = channels * case.scene.plan.samples_per_chirp as f64 * 8.0;
+    let voxels = 0.3f64.powi(3) / case.recon.voxel_m.powi(3);
+    (3.0 * capture + voxels.min(6.0e7) * 64.0) as u64
+}
+
+/// A counting semaphore over bytes.
+struct Budget {
+    free: Mutex<u64>,
+    changed: Condvar,
+    total: u64,
+}
+
+impl Budget {
+    fn take(&self, want: u64) -> u64 {
+        let want = want.min(self.total);
+        let mut free = self.free.lock().unwrap_or_else(|p| p.into_inner());
+        while *free < want {
+            free = self.changed.wait(free).unwrap_or_else(|p| p.into_inner());
+        }
+        *free -= want;
+        want
+    }
+
+    fn give(&self, n: u64) {
+        let mut free = self.free.lock().unwrap_or_else(|p| p.into_inner());
+        *free += n;
+        self.changed.notify_all();
+    }
+}
+
+/// Runs every case (resuming finished ones), `jobs` at a time within the memory budget, with one
+/// progress bar naming each running case and its stage. Returns each case's result or error.
+pub fn run_cases(cases: &[Case], opts: &RunOptions) -> Vec<Result<CaseResult, String>> {
+    let progress = Progress::new("bench", cases.len() as u64, opts.quiet);
+    let active: Mutex<Vec<(usize, String)>> = Mutex::new(Vec::new());
+    let show = |slot: usize, text: Option<String>| {
+        let mut a = active.lock().unwrap_or_else(|p| p.into_inner());
+        a.retain(|(s, _)| *s != slot);
+        if let Some(t) = text {
+            a.push((slot, t));
+        }
+        a.sort();
+        let line: Vec<&str> = a.iter().map(|(_, t)| t.as_str()).collect();
+        progress.set_message(&line.join(" | "));
+    };
+    let budget = Budget {
+        free: Mutex::new(opts.memory_budget_bytes.max(1)),
+        changed: Condvar::new(),
+        total: opts.memory_budget_bytes.max(1),
+    };
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Result<CaseResult, String>>>> =
+        Mutex::new(vec![None; cases.len()]);
+    std::thread::scope(|scope| {
+        for slot in 0..opts.jobs.max(1) {
+            let (next, budget, results, show, progress) =
+                (&next, &budget, &results, &show, &progress);
+            scope.spawn(move || {
+                loop {
+                    let i = next.fetch_add(1, Ordering::SeqCst);
+                    let Some(case) = cases.get(i) else { break };
+                    let held = budget.take(memory_estimate_bytes(case));
+                    let stage = |s: &str| show(slot, Some(format!("{} {s}", case.id)));
+                    let started = Instant::now();
+                    let outcome = run_case(case, opts, &stage).map_err(|e| {
+                        tracing::error!("{}: {e}", case.id);
+                        e.to_string()
+                    });
+                    if let Ok(r) = &outcome {
+                        let f: Vec<String> = r
+                            .methods
+                            .iter()
+                            .take(3)
+                            .map(|m| {
+                                let f = m.metrics.as_ref().map_or(0.0, |x| x.f_score);
+                                format!("{} {f:.2}", m.method)
+                            })
+                            .collect();
+                        tracing::info!(
+                            "{}: F {} ({:.0} s)",
+                            case.id,
+                            f.join(", "),
+                            started.elapsed().as_secs_f64()
+                        );
+                    }
+                    budget.give(held);
+                    show(slot, None);
+                    progress.inc(1);
+                    results.lock().unwrap_or_else(|p| p.into_inner())[i] = Some(outcome);
+                }
+            });
+        }
+    });
+    progress.finish();
+    results
+        .into_inner()
+        .unwrap_or_else(|p| p.into_inner())
+        .into_iter()
+        .map(|r| r.unwrap_or_else(|| Err("not run".into())))
+        .collect()
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
+    move |source| BenchError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Reads a finished case's result if its key matches.
+fn finished(dir: &Path, key: &str) -> Option<CaseResult> {
+    let text = std::fs::read_to_string(dir.join("result.json")).ok()?;
+    let r: CaseResult = serde_json::from_str(&text).ok()?;
+    (r.key == key).then_some(r)
+}
+
+/// The case's result if an earlier run finished it with the same settings.
+pub fn finished_result(case: &Case, opts: &RunOptions) -> Option<CaseResult> {
+    let key = result_key(case, &super::cache::capture_key(case), opts.tau_m);
+    finished(&opts.runs_dir.join(&case.id), &key)
+}
+
+/// Runs one case (or reads it back when already done).
+pub fn run_case(
+    case: &Case,
+    opts: &RunOptions,
+    stage: &dyn Fn(&str),
+) -> Result<CaseResult, BenchError> {
+    let dir = opts.runs_dir.join(&case.id);
+    let capture_key = super::cache::capture_key(case);
+    let key = result_key(case, &capture_key, opts.tau_m);
+    if let Some(done) = finished(&dir, &key) {
+        return Ok(done);
+    }
+    stage("simulate");
+    let cached = capture_for(&opts.cache_dir, case)?;
+    let capture = &cached.capture;
+    let (truth, truth_normals) = top_surface_with_normals(&cached.truth_mesh, TOP_GRID_M);
+    stage("image");
+    let imaged = image_volume(capture, &case.recon, true)?;
+    std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+    let mut outcomes: Vec<(String, Result<Reconstruction, String>)> = Vec::new();
+    stage("mmnorm");
+    match reconstruct_isosurfaces(
+        capture,
+        &case.recon,
+        &imaged,
+        &[
+            Isosurface::Optimized,
+            Isosurface::Center,
+            Isosurface::Weighted,
+        ],
+        true,
+    ) {
+        Ok(list) => {
+            for (name, r) in ["mmnorm", "center", "weighted"].into_iter().zip(list) {
+                outcomes.push((name.into(), Ok(r)));
+            }
+        }
+        Err(e) => {
+            for name in ["mmnorm", "center", "weighted"] {
+                outcomes.push((name.into(), Err(e.to_string())));
+            }
+        }
+    }
+    stage("baselines");
+    for (name, method) in [
+        ("backprojection", Method::Backprojection),
+        ("interferometric", Method::Interferometric),
+    ] {
+        let config = crate::recon::ReconConfig {
+            method,
+            ..case.recon.clone()
+        };
+        let started = Instant::now();
+        let r = reconstruct_imaged(capture, &config, &imaged, true).map_err(|e| e.to_string());
+        tracing::debug!(
+            "{} {name}: {:.1} s",
+            case.id,
+            started.elapsed().as_secs_f64()
+        );
+        outcomes.push((name.into(), r));
+    }
+    stage("score");
+    let mut methods = Vec::new();
+    let mut clouds = Vec::new();
+    for name in METHODS {
+        let Some((_, outcome)) = outcomes.iter().find(|(n, _)| n == name) else {
+            continue;
+        };
+        let result = match outcome {
+            Ok(recon) => {
+                let (normals, source) = match &recon.normals {
+                    Some(n) => (n.clone(), "mmnorm"),
+                    None => (
+                        estimate_normals(&recon.points_m, PCA_NEIGHBOURS, PCA_RADIUS_M),
+                        "pca",
+                    ),
+                };
+                let (metrics, scores) = evaluate_points(
+                    &recon.points_m,
+                    Some(&normals),
+                    &truth,
+                    Some(&truth_normals),
+                    opts.tau_m,
+                );
+                let ply = dir.join(format!("{name}.ply"));
+                write_atomically(&ply, &recon.encode_ply())?;
+                let npy_path = dir.join(format!("{name}.scores.npy"));
+                write_atomically(&npy_path, &npy::encode_f64_rows(&score_rows(&scores)))?;
+                clouds.push((name, recon.points_m.clone()));
+                MethodResult {
+                    method: name.into(),
+                    metrics: Some(metrics),
+                    error: None,
+                    normals: source.into(),
+                    total_s: recon.summary.stage_s.iter().map(|(_, t)| t).sum(),
+                    stage_s: recon.summary.stage_s.clone(),
+                }
+            }
+            Err(e) => MethodResult {
+                method: name.into(),
+                metrics: None,
+                error: Some(e.clone()),
+                normals: String::new(),
+                stage_s: Vec::new(),
+                total_s: 0.0,
+            },
+        };
+        methods.push(result);
+    }
+    stage("picture");
+    let find = |n: &str| {
+        clouds
+            .iter()
+            .find(|(m, _)| *m == n)
+            .map(|(_, p)| p.as_slice())
+    };
+    std::fs::create_dir_all(&opts.scenes_dir).map_err(io(&opts.scenes_dir))?;
+    write_scene_png(
+        &opts.scenes_dir.join(format!("{}.png", case.id)),
+        &case.id,
+        &truth,
+        find("mmnorm").unwrap_or(&[]),
+        find("backprojection").unwrap_or(&[]),
+    )?;
+    let result = CaseResult {
+        key,
+        id: case.id.clone(),
+        scene: case.scene_name.clone(),
+        pose: case.pose,
+        condition: case.condition,
+        capture_key: cached.key.clone(),
+        antennas: capture.antennas(),
+        simulate_s: cached.simulate_s,
+        truth_points: truth.len(),
+        methods,
+    };
+    let mut text = serde_json::to_string_pretty(&result)?;
+    text.push('\n');
+    write_atomically(&dir.join("result.json"), text.as_bytes())?;
+    Ok(result)
+}
+
+/// Rows of (point error, relative error, normal cosine or NaN).
+fn score_rows(s: &PointScores) -> Vec<[f64; 3]> {
+    (0..s.error_m.len())
+        .map(|i| {
+            [
+                s.error_m[i],
+                s.relative[i],
+                s.normal_cos.as_ref().map_or(f64::NAN, |c| c[i]),
+            ]
+        })
+        .collect()
+}
+
+/// Reads back the per-point scores of one method of one case (empty when it has none).
+pub fn read_scores(runs_dir: &Path, id: &str, method: &str) -> Result<Vec<[f64; 3]>, BenchError> {
+    let path = runs_dir.join(id).join(format!("{method}.scores.npy"));
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    Ok(crate::capture::dir::read_points_npy(&path)?)
+}

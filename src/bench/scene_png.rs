@@ -1,0 +1,94 @@
+//! One picture per case in the style of the paper's Fig. 10: truth, mmNorm and the
+//! backprojection baseline, from the top (colour = height) and from the side (colour = y), all
+//! panels on the same axes so their sizes and positions compare directly.
+
+use std::path::Path;
+
+use crate::plot::{BLACK, Canvas, LIGHT, WHITE};
+use crate::preview::{PreviewError, viridis};
+
+const PANEL: i64 = 240;
+const GAP: i64 = 16;
+const HEAD: i64 = 44;
+const LABEL: i64 = 48;
+
+/// Draws the six panels; points outside the truth's box plus 3 cm are left out.
+pub fn write_scene_png(
+    path: &Path,
+    title: &str,
+    truth: &[[f64; 3]],
+    mmnorm: &[[f64; 3]],
+    backprojection: &[[f64; 3]],
+) -> Result<(), PreviewError> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in truth {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k] - 0.03);
+            hi[k] = hi[k].max(p[k] + 0.03);
+        }
+    }
+    if !lo[0].is_finite() {
+        lo = [-0.1; 3];
+        hi = [0.1; 3];
+    }
+    let columns = [
+        ("truth", truth),
+        ("mmNorm", mmnorm),
+        ("backprojection", backprojection),
+    ];
+    let width = LABEL + 3 * PANEL + 4 * GAP;
+    let height = HEAD + 2 * (PANEL + GAP + 14);
+    let mut c = Canvas::new(width as usize, height as usize, WHITE);
+    c.text(GAP, 10, title, BLACK, 2);
+    // One metres-per-pixel for every panel: the largest extent fills a panel.
+    let span = (0..3)
+        .map(|k| hi[k] - lo[k])
+        .fold(0.0f64, f64::max)
+        .max(1e-3);
+    let scale = (PANEL - 8) as f64 / span;
+    for (row, (name, u, v, colour_axis)) in [("top", 0usize, 1usize, 2usize), ("side", 0, 2, 1)]
+        .into_iter()
+        .enumerate()
+    {
+        let y0 = HEAD + row as i64 * (PANEL + GAP + 14) + 14;
+        c.text(4, y0 + PANEL / 2 - 4, name, BLACK, 1);
+        for (col, (label, points)) in columns.iter().enumerate() {
+            let x0 = LABEL + GAP + col as i64 * (PANEL + GAP);
+            c.fill_rect(x0, y0, PANEL, PANEL, [245, 245, 245]);
+            for e in 0..PANEL {
+                c.set(x0 + e, y0, LIGHT);
+                c.set(x0 + e, y0 + PANEL - 1, LIGHT);
+                c.set(x0, y0 + e, LIGHT);
+                c.set(x0 + PANEL - 1, y0 + e, LIGHT);
+            }
+            if row == 0 {
+                let text = format!("{label} ({})", points.len());
+                c.text(x0, y0 - 14, &text, BLACK, 1);
+            }
+            // Centre the box in the panel; draw far points first so near ones stay on top.
+            let cu = (lo[u] + hi[u]) / 2.0;
+            let cv = (lo[v] + hi[v]) / 2.0;
+            let mut order: Vec<&[f64; 3]> = points
+                .iter()
+                .filter(|p| (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]))
+                .collect();
+            order.sort_by(|a, b| a[colour_axis].total_cmp(&b[colour_axis]));
+            if colour_axis == 1 {
+                order.reverse();
+            }
+            for p in order {
+                let x = x0 + PANEL / 2 + ((p[u] - cu) * scale).round() as i64;
+                let y = y0 + PANEL / 2 - ((p[v] - cv) * scale).round() as i64;
+                let t = (p[colour_axis] - lo[colour_axis]) / (hi[colour_axis] - lo[colour_axis]);
+                c.fill_rect(x, y, 2, 2, viridis(t as f32));
+            }
+        }
+    }
+    let bar = format!(
+        "panels {:.0} cm across; top: colour = height, side: colour = y",
+        span * 100.0
+    );
+    c.text(GAP, height - 12, &bar, BLACK, 1);
+    c.write_png(path)
+}

@@ -1,0 +1,156 @@
+//! The accuracy benchmark end to end on the smoke suite (two scenes, a small aperture, LOS and
+//! NLOS), and the suites that ship with the repository.
+
+use std::path::Path;
+
+use mmnormd::bench::{BenchOptions, Suite, run_suite};
+
+fn suite_path(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tools/bench")
+        .join(name)
+}
+
+#[test]
+fn smoke_suite_scores_mmnorm_above_its_floor_and_ahead_of_backprojection() {
+    let suite = Suite::load(&suite_path("smoke.toml")).expect("smoke suite");
+    assert_eq!(suite.cases.len(), 4);
+    let out = tempfile::tempdir().expect("tempdir");
+    let opts = BenchOptions {
+        work_dir: None,
+        jobs: 2,
+        memory_budget_bytes: 8 << 30,
+        markdown: Some(out.path().join("BENCH.md")),
+        command: "test".into(),
+        report_only: false,
+        quiet: true,
+    };
+    let outcome = run_suite(&suite, out.path(), &opts).expect("bench runs");
+    assert!(
+        outcome.failed_cases.is_empty(),
+        "{:?}",
+        outcome.failed_cases
+    );
+    assert_eq!(outcome.results.len(), 4);
+    for r in &outcome.results {
+        let f = |name: &str| {
+            r.methods
+                .iter()
+                .find(|m| m.method == name)
+                .and_then(|m| m.metrics.clone())
+                .unwrap_or_else(|| panic!("{} {name} has no metrics", r.id))
+        };
+        let (mm, bp) = (f("mmnorm"), f("backprojection"));
+        println!(
+            "{}: mmNorm F {:.3} (P {:.3} R {:.3}), backprojection F {:.3}, interferometric F {:.3}",
+            r.id,
+            mm.f_score,
+            mm.precision,
+            mm.recall,
+            bp.f_score,
+            f("interferometric").f_score
+        );
+        // The small aperture caps recall (it sees a cap of each surface), not precision.
+        assert!(mm.f_score >= 0.45, "{}: {}", r.id, mm.f_score);
+        assert!(mm.precision >= 0.95, "{}: {}", r.id, mm.precision);
+        assert!(
+            mm.f_score > bp.f_score + 0.1,
+            "{}: {} vs {}",
+            r.id,
+            mm.f_score,
+            bp.f_score
+        );
+        assert!(mm.normal_cos_median.unwrap_or(0.0) >= 0.98, "{}", r.id);
+        for name in ["center", "weighted", "interferometric"] {
+            assert!(f(name).points > 0, "{} {name}", r.id);
+        }
+    }
+
+    // The outputs the issue names.
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).expect("results.csv");
+    assert!(csv.starts_with(
+        "scene,condition,method,f_score,precision,recall,position_error_m,point_error_median_m,\
+point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,"
+    ));
+    assert_eq!(csv.lines().count(), 1 + 4 * 5);
+    for name in [
+        "report.md",
+        "fig12a_f_score.png",
+        "fig12b_position_error.png",
+        "fig12c_relative_error.png",
+        "fig13_normal_cosine.png",
+        "fig14_ablation_point_error.png",
+        "fig15_los_nlos_point_error.png",
+        "scenes/sphere-flat-nlos.png",
+        "scenes/soup_can-side-los.png",
+    ] {
+        let p = out.path().join(name);
+        assert!(
+            p.is_file() && p.metadata().map(|m| m.len() > 0).unwrap_or(false),
+            "{name}"
+        );
+    }
+    let report = std::fs::read_to_string(out.path().join("report.md")).expect("report");
+    for heading in [
+        "## Targets",
+        "## Shape, position and point error (Fig. 12)",
+        "## Normals (Fig. 13)",
+        "## Isosurface optimisation against its ablations",
+        "## Line of sight against cardboard",
+        "| sphere-flat-los |",
+    ] {
+        assert!(report.contains(heading), "{heading}");
+    }
+    // The copy elsewhere links back into OUT.
+    let copy = std::fs::read_to_string(out.path().join("BENCH.md")).expect("markdown copy");
+    assert!(copy.contains("](fig12a_f_score.png)") || copy.contains("/fig12a_f_score.png)"));
+
+    // A second run finds every case finished and runs none of them again.
+    let before = std::fs::metadata(out.path().join("work/runs/sphere-flat-los/result.json"))
+        .and_then(|m| m.modified())
+        .expect("result.json");
+    let again = run_suite(&suite, out.path(), &opts).expect("second run");
+    assert_eq!(again.results.len(), 4);
+    let after = std::fs::metadata(out.path().join("work/runs/sphere-flat-los/result.json"))
+        .and_then(|m| m.modified())
+        .expect("result.json");
+    assert_eq!(before, after);
+    let cached = std::fs::read_dir(out.path().join("work/captures"))
+        .expect("cache")
+        .filter_map(Result::ok)
+        .filter(|e| e.path().join("capture.json").is_file())
+        .count();
+    assert_eq!(cached, 4);
+}
+
+#[test]
+fn the_paper_suite_uses_every_shared_mesh_and_the_reduced_suite_the_same_scenes() {
+    let meshes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes");
+    let paper_text = std::fs::read_to_string(suite_path("paper.toml")).expect("paper.toml");
+    let mut files = 0;
+    for e in std::fs::read_dir(&meshes)
+        .expect("shared meshes")
+        .filter_map(Result::ok)
+    {
+        let name = e.file_name().to_string_lossy().to_string();
+        if name.ends_with(".stl") || name.ends_with(".obj") {
+            files += 1;
+            assert!(paper_text.contains(&name), "paper.toml does not use {name}");
+        }
+    }
+    assert!(files >= 13, "{files}");
+    let paper = Suite::load(&suite_path("paper.toml")).expect("paper suite");
+    let reduced = Suite::load(&suite_path("reduced.toml")).expect("reduced suite");
+    let ids = |s: &Suite| s.cases.iter().map(|c| c.id.clone()).collect::<Vec<_>>();
+    assert_eq!(ids(&paper), ids(&reduced));
+    assert!(paper.cases.len() >= 90, "{}", paper.cases.len());
+    // The paper's aperture: 60×45 cm at λ/4, 4 RX, 40 cm above the highest point.
+    let a = &paper.cases[0].scene.aperture;
+    assert_eq!((a.width_m, a.height_m), (0.60, 0.45));
+    assert!((a.spacing_m - paper.cases[0].scene.plan.first_wavelength_m() / 4.0).abs() < 1e-9);
+    assert_eq!(a.layout, mmnormd::sim::scene::Layout::Iwr1443boost);
+    for c in &paper.cases {
+        let nlos = c.id.ends_with("-nlos");
+        assert_eq!(c.scene.occluder.is_some(), nlos, "{}", c.id);
+    }
+}
