@@ -111,30 +111,7 @@ enum Command {
 enum BenchCommand {
     /// The paper's evaluation (§6.2–§6.3) over a suite of simulated scenes: results.csv,
     /// report.md, CDF plots and one picture per case.
-    Accuracy {
-        /// Suite file (TOML), e.g. tools/bench/reduced.toml.
-        #[arg(long)]
-        suite: PathBuf,
-        /// Output directory. Finished cases found there are not run again.
-        #[arg(long)]
-        out: PathBuf,
-        /// Cases run side by side [default: 2, fewer when memory is short].
-        #[arg(long)]
-        jobs: Option<usize>,
-        /// Working directory: the capture cache and each case's run, kept between runs so an
-        /// interrupted bench resumes [default: OUT/work].
-        #[arg(long)]
-        work: Option<PathBuf>,
-        /// Also write the report here (e.g. BENCHMARKS.md), linking into OUT.
-        #[arg(long)]
-        markdown: Option<PathBuf>,
-        /// Run only the cases whose id contains this text.
-        #[arg(long)]
-        only: Option<String>,
-        /// Run nothing; write the report from the cases already finished in OUT.
-        #[arg(long)]
-        report_only: bool,
-    },
+    Accuracy(cli::bench::AccuracyArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -188,26 +165,8 @@ fn main() -> std::process::ExitCode {
             args.quiet,
         ),
         Command::Bench {
-            which:
-                BenchCommand::Accuracy {
-                    suite,
-                    out,
-                    jobs,
-                    work,
-                    markdown,
-                    only,
-                    report_only,
-                },
-        } => cli::bench::accuracy(cli::bench::AccuracyArgs {
-            suite,
-            out,
-            jobs,
-            work,
-            markdown,
-            only,
-            report_only,
-            quiet: args.quiet,
-        }),
+            which: BenchCommand::Accuracy(a),
+        } => cli::bench::accuracy(a, args.quiet),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };
     match result {

@@ -397,6 +397,15 @@ neighbours within 1 cm, as the paper does for its baselines (§6.3.1). Results: 
         info.wall_s,
         link("results.csv")
     );
+    if results.len() < info.cases {
+        let _ = writeln!(
+            md,
+            "**Partial run: {} of {} cases have results.** Every figure below covers those \
+cases only; the others are listed at the end. Running the same command again resumes.\n",
+            results.len(),
+            info.cases
+        );
+    }
     let _ = writeln!(md, "## Targets\n");
     let f_mm = &stats.f_scores[0];
     let cos_mm = column(&stats.points[0], 2);

@@ -3,15 +3,30 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use mmnormd::bench::{BenchOptions, Suite, run_suite};
 
+#[derive(clap::Args)]
 pub struct AccuracyArgs {
-    pub suite: PathBuf,
-    pub out: PathBuf,
-    pub jobs: Option<usize>,
-    pub work: Option<PathBuf>,
-    pub markdown: Option<PathBuf>,
-    pub only: Option<String>,
-    pub report_only: bool,
-    pub quiet: bool,
+    /// Suite file (TOML), e.g. tools/bench/reduced.toml.
+    #[arg(long)]
+    suite: PathBuf,
+    /// Output directory. Finished cases found in the work directory are not run again.
+    #[arg(long)]
+    out: PathBuf,
+    /// Cases run side by side [default: 2].
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Working directory: the capture cache and each case's run, kept between runs so an
+    /// interrupted bench resumes [default: OUT/work].
+    #[arg(long)]
+    work: Option<PathBuf>,
+    /// Also write the report here (e.g. BENCHMARKS.md), linking into OUT.
+    #[arg(long)]
+    markdown: Option<PathBuf>,
+    /// Run only the cases whose id contains this text.
+    #[arg(long)]
+    only: Option<String>,
+    /// Run nothing; write the report from the cases already finished.
+    #[arg(long)]
+    report_only: bool,
 }
 
 /// Memory available to new work (MemAvailable), bytes; None off Linux.
@@ -22,7 +37,7 @@ fn available_memory_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
-pub fn accuracy(a: AccuracyArgs) -> Result<()> {
+pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
     let mut suite = Suite::load(&a.suite)?;
     if let Some(only) = &a.only {
         suite.cases.retain(|c| c.id.contains(only.as_str()));
@@ -60,7 +75,7 @@ pub fn accuracy(a: AccuracyArgs) -> Result<()> {
             markdown: a.markdown,
             command,
             report_only: a.report_only,
-            quiet: a.quiet,
+            quiet,
         },
     )?;
     println!(

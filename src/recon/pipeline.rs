@@ -228,17 +228,30 @@ pub fn reconstruct_imaged(
             let n = points.len();
             (points, None, vec![0; n])
         }
-        Method::Mmnorm => mmnorm(
-            capture,
-            config,
-            &grid,
-            &imaged.profiles,
-            &imaged.image,
-            magnitude,
-            quiet,
-            &mut summary,
-            &mut stages,
-        )?,
+        Method::Mmnorm => {
+            let fields = mmnorm_fields(
+                capture,
+                config,
+                &grid,
+                &imaged.profiles,
+                &imaged.image,
+                magnitude,
+                quiet,
+                &mut summary,
+                &mut stages,
+            )?;
+            mmnorm_points(
+                capture,
+                config,
+                config.isosurface,
+                &grid,
+                &fields,
+                magnitude,
+                quiet,
+                &mut summary,
+                &mut stages,
+            )?
+        }
     };
     summary.stage_s = stages.list;
     summary.points = points_m.len();
@@ -371,34 +384,6 @@ struct Fields {
     ranges: Vec<(f64, f64)>,
     candidate_sets: Vec<Vec<f64>>,
     step_m: f64,
-}
-
-#[allow(clippy::too_many_arguments)]
-fn mmnorm(
-    capture: &Capture,
-    config: &ReconConfig,
-    grid: &VoxelGrid,
-    profiles: &RangeProfiles,
-    image: &[Complex32],
-    magnitude: &[f32],
-    quiet: bool,
-    summary: &mut Summary,
-    stages: &mut Stages,
-) -> Result<Points, ReconError> {
-    let fields = mmnorm_fields(
-        capture, config, grid, profiles, image, magnitude, quiet, summary, stages,
-    )?;
-    mmnorm_points(
-        capture,
-        config,
-        config.isosurface,
-        grid,
-        &fields,
-        magnitude,
-        quiet,
-        summary,
-        stages,
-    )
 }
 
 #[allow(clippy::too_many_arguments)]
