@@ -23,6 +23,7 @@ fn smoke_suite_scores_mmnorm_above_its_floor_and_ahead_of_backprojection() {
         markdown: Some(out.path().join("BENCH.md")),
         command: "test".into(),
         report_only: false,
+        notes: None,
         quiet: true,
     };
     let outcome = run_suite(&suite, out.path(), &opts).expect("bench runs");

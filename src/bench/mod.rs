@@ -60,6 +60,8 @@ pub struct BenchOptions {
     pub command: String,
     /// Run nothing: report the cases an earlier run finished (the others as not run).
     pub report_only: bool,
+    /// A markdown file of hand-written analysis to include in the report.
+    pub notes: Option<PathBuf>,
     pub quiet: bool,
 }
 
@@ -110,6 +112,16 @@ pub fn run_suite(
         }
     }
     let wall_s = started.elapsed().as_secs_f64();
+    let notes = match &opts.notes {
+        Some(p) => Some((
+            p.display().to_string(),
+            std::fs::read_to_string(p).map_err(|source| BenchError::Io {
+                path: p.clone(),
+                source,
+            })?,
+        )),
+        None => None,
+    };
     report::write_csv(&results, out)?;
     let stats = report::gather(&results, &run_opts.runs_dir)?;
     let plots = report::write_plots(&stats, out)?;
@@ -134,6 +146,7 @@ pub fn run_suite(
         wall_s,
         cases: suite.cases.len(),
         failed_cases: failed_cases.clone(),
+        notes,
     };
     let md = report::report_md(&info, &results, &stats, &plots, &|f| f.to_string());
     write_atomically(&out.join("report.md"), md.as_bytes())?;

@@ -362,6 +362,8 @@ pub struct RunInfo {
     pub wall_s: f64,
     pub cases: usize,
     pub failed_cases: Vec<(String, String)>,
+    /// Hand-written analysis (markdown) appended to the report, with the file it came from.
+    pub notes: Option<(String, String)>,
 }
 
 /// `report.md`. `link` turns a file name of the output directory into the link to use (so the
@@ -461,6 +463,13 @@ cases only; the others are listed at the end. Running the same command again res
         within,
     );
 
+    if let Some((file, text)) = &info.notes {
+        let _ = writeln!(
+            md,
+            "\n## Analysis\n\n_From `{file}`, written by hand for this run._\n"
+        );
+        let _ = writeln!(md, "{}", text.trim_end());
+    }
     let _ = writeln!(md, "\n## Shape, position and point error (Fig. 12)\n");
     let _ = writeln!(
         md,

@@ -27,6 +27,9 @@ pub struct AccuracyArgs {
     /// Run nothing; write the report from the cases already finished.
     #[arg(long)]
     report_only: bool,
+    /// Markdown with a hand-written analysis of the run, included in the report.
+    #[arg(long)]
+    notes: Option<PathBuf>,
 }
 
 /// Memory available to new work (MemAvailable), bytes; None off Linux.
@@ -47,6 +50,11 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
                 a.suite.display()
             );
         }
+    }
+    if let Some(n) = &a.notes
+        && !n.is_file()
+    {
+        bail!("--notes {}: no such file", n.display());
     }
     let jobs = a.jobs.unwrap_or(2);
     if jobs == 0 {
@@ -75,6 +83,7 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
             markdown: a.markdown,
             command,
             report_only: a.report_only,
+            notes: a.notes,
             quiet,
         },
     )?;
