@@ -144,6 +144,7 @@ pub fn run_suite(
         command: opts.command.clone(),
         aperture: a,
         wall_s,
+        report_only: opts.report_only,
         cases: suite.cases.len(),
         failed_cases: failed_cases.clone(),
         notes,

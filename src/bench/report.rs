@@ -360,6 +360,8 @@ pub struct RunInfo {
     pub command: String,
     pub aperture: String,
     pub wall_s: f64,
+    /// Whether the run only reported finished cases.
+    pub report_only: bool,
     pub cases: usize,
     pub failed_cases: Vec<(String, String)>,
     /// Hand-written analysis (markdown) appended to the report, with the file it came from.
@@ -388,15 +390,22 @@ pub fn report_md(
     );
     let _ = writeln!(
         md,
-        "{} cases ({} with results), aperture {}; wall time of this run {:.0} s (cases whose \
-results were already on disk were not run again). Per-case metrics (F-score, position error) are \
+        "{} cases ({} with results), aperture {}; {}. Per-case metrics (F-score, position error) are \
 distributions over cases; point metrics pool every point of every case, as the paper does. A \
 method that failed on a case counts as F = 0. Baseline normals are estimated by PCA over 30 \
 neighbours within 1 cm, as the paper does for its baselines (§6.3.1). Results: [results.csv]({}).\n",
         info.cases,
         results.len(),
         info.aperture,
-        info.wall_s,
+        if info.report_only {
+            "this report was written with --report-only from cases finished by earlier runs"
+                .to_string()
+        } else {
+            format!(
+                "wall time of this run {:.0} s (cases already finished on disk were not run again)",
+                info.wall_s
+            )
+        },
         link("results.csv")
     );
     if results.len() < info.cases {
