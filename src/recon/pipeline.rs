@@ -253,14 +253,7 @@ pub fn reconstruct_imaged(
             )?
         }
     };
-    summary.stage_s = stages.list;
-    summary.points = points_m.len();
-    Ok(Reconstruction {
-        points_m,
-        normals,
-        components,
-        summary,
-    })
+    Ok(assemble(summary, stages, (points_m, normals, components)))
 }
 
 /// Runs mmNorm once up to the RSDFs and then finishes it with each of `isosurfaces` (the
@@ -301,7 +294,7 @@ pub fn reconstruct_isosurfaces(
                 list: shared_stages.clone(),
                 ..Stages::default()
             };
-            let (points_m, normals, components) = mmnorm_points(
+            let points = mmnorm_points(
                 capture,
                 &config,
                 isosurface,
@@ -312,16 +305,22 @@ pub fn reconstruct_isosurfaces(
                 &mut summary,
                 &mut own,
             )?;
-            summary.stage_s = own.list;
-            summary.points = points_m.len();
-            Ok(Reconstruction {
-                points_m,
-                normals,
-                components,
-                summary,
-            })
+            Ok(assemble(summary, own, points))
         })
         .collect()
+}
+
+/// The reconstruction of `points`, with the summary's stage times and point count filled in.
+fn assemble(mut summary: Summary, stages: Stages, points: Points) -> Reconstruction {
+    let (points_m, normals, components) = points;
+    summary.stage_s = stages.list;
+    summary.points = points_m.len();
+    Reconstruction {
+        points_m,
+        normals,
+        components,
+        summary,
+    }
 }
 
 /// An empty summary for `config` on `imaged`, and a stage clock that starts with the shared
