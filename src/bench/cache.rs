@@ -2,12 +2,12 @@
 //! file replaced by the hash of its bytes, plus the simulator's revision. A capture is written
 //! under a temporary name and renamed into place, so a cache entry is whole or absent.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use sha2::Digest;
 
-use super::BenchError;
 use super::suite::{Case, hex};
+use super::{BenchError, io};
 use crate::capture::{Capture, read_capture_dir};
 use crate::geometry::{TriMesh, load_mesh};
 use crate::sim::{simulate, write_simulation};
@@ -30,27 +30,16 @@ pub fn capture_key(case: &Case) -> String {
 
 /// A case's capture and its truth mesh, from the cache or freshly simulated.
 pub struct CachedCapture {
-    pub key: String,
-    pub dir: PathBuf,
     pub capture: Capture,
     pub truth_mesh: TriMesh,
     /// Seconds the simulation took when it ran.
     pub simulate_s: f64,
-    /// Whether it came from the cache.
-    pub hit: bool,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
-    move |source| BenchError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
-/// Reads the case's capture from `cache_dir`, simulating and storing it first when absent.
-pub fn capture_for(cache_dir: &Path, case: &Case) -> Result<CachedCapture, BenchError> {
-    let key = capture_key(case);
-    let dir = cache_dir.join(&key);
+/// Reads the case's capture (`key`, from [`capture_key`]) from `cache_dir`, simulating and
+/// storing it first when absent.
+pub fn capture_for(cache_dir: &Path, case: &Case, key: &str) -> Result<CachedCapture, BenchError> {
+    let dir = cache_dir.join(key);
     let hit = dir.join("capture.json").is_file() && dir.join("truth.ply").is_file();
     if !hit {
         std::fs::create_dir_all(cache_dir).map_err(io(cache_dir))?;
@@ -75,12 +64,9 @@ pub fn capture_for(cache_dir: &Path, case: &Case) -> Result<CachedCapture, Bench
             }
         }
         return Ok(CachedCapture {
-            key,
             capture: result.capture,
             truth_mesh: result.truth_mesh,
             simulate_s: result.stats.seconds,
-            hit: false,
-            dir,
         });
     }
     let capture = read_capture_dir(&dir)?;
@@ -92,11 +78,8 @@ pub fn capture_for(cache_dir: &Path, case: &Case) -> Result<CachedCapture, Bench
         .and_then(serde_json::Value::as_f64)
         .unwrap_or(f64::NAN);
     Ok(CachedCapture {
-        key,
-        dir,
         capture,
         truth_mesh,
         simulate_s,
-        hit: true,
     })
 }

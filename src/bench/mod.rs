@@ -48,6 +48,14 @@ pub enum BenchError {
     Json(#[from] serde_json::Error),
 }
 
+/// Maps an IO error on `path` into [`BenchError::Io`].
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
+    move |source| BenchError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
 /// How to run a suite.
 pub struct BenchOptions {
     /// The capture cache (`captures/`) and the per-case runs (`runs/`) [default: `OUT/work`].
@@ -90,10 +98,7 @@ pub fn run_suite(
         memory_budget_bytes: opts.memory_budget_bytes,
         quiet: opts.quiet,
     };
-    std::fs::create_dir_all(&run_opts.runs_dir).map_err(|source| BenchError::Io {
-        path: run_opts.runs_dir.clone(),
-        source,
-    })?;
+    std::fs::create_dir_all(&run_opts.runs_dir).map_err(io(&run_opts.runs_dir))?;
     let outcomes = if opts.report_only {
         suite
             .cases
@@ -115,10 +120,7 @@ pub fn run_suite(
     let notes = match &opts.notes {
         Some(p) => Some((
             p.display().to_string(),
-            std::fs::read_to_string(p).map_err(|source| BenchError::Io {
-                path: p.clone(),
-                source,
-            })?,
+            std::fs::read_to_string(p).map_err(io(p))?,
         )),
         None => None,
     };

@@ -13,10 +13,10 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use sha2::Digest;
 
-use super::BenchError;
-use super::cache::capture_for;
+use super::cache::{capture_for, capture_key};
 use super::scene_png::write_scene_png;
 use super::suite::{Case, Condition, Pose, hex};
+use super::{BenchError, io};
 use crate::capture::dir::write_atomically;
 use crate::capture::npy;
 use crate::eval::{Metrics, PointScores, estimate_normals, evaluate_points};
@@ -97,12 +97,12 @@ pub fn result_key(case: &Case, capture_key: &str, tau_m: f64) -> String {
 /// capture, range profiles) and the volume's per-voxel arrays.
 pub fn memory_estimate_bytes(case: &Case) -> u64 {
     let a = &case.scene.aperture;
-    let along = |extent: f64| (extent / a.spacing_m + 1e-9).floor() + 1.0;
+    let (columns, rows) = a.raster_size();
     let per = match a.layout {
         crate::sim::scene::Layout::Monostatic => 1.0,
         crate::sim::scene::Layout::Iwr1443boost => 4.0,
     };
-    let channels = along(a.width_m) * along(a.height_m) * per;
+    let channels = columns as f64 * rows as f64 * per;
     let capture = channels * case.scene.plan.samples_per_chirp as f64 * 8.0;
     let voxels = 0.3f64.powi(3) / case.recon.voxel_m.powi(3);
     (3.0 * capture + voxels.min(6.0e7) * 64.0) as u64
@@ -205,13 +205,6 @@ pub fn run_cases(cases: &[Case], opts: &RunOptions) -> Vec<Result<CaseResult, St
         .collect()
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
-    move |source| BenchError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Reads a finished case's result if its key matches.
 fn finished(dir: &Path, key: &str) -> Option<CaseResult> {
     let text = std::fs::read_to_string(dir.join("result.json")).ok()?;
@@ -219,10 +212,16 @@ fn finished(dir: &Path, key: &str) -> Option<CaseResult> {
     (r.key == key).then_some(r)
 }
 
+/// The case's capture key and result key.
+fn keys(case: &Case, opts: &RunOptions) -> (String, String) {
+    let capture_key = capture_key(case);
+    let key = result_key(case, &capture_key, opts.tau_m);
+    (capture_key, key)
+}
+
 /// The case's result if an earlier run finished it with the same settings.
 pub fn finished_result(case: &Case, opts: &RunOptions) -> Option<CaseResult> {
-    let key = result_key(case, &super::cache::capture_key(case), opts.tau_m);
-    finished(&opts.runs_dir.join(&case.id), &key)
+    finished(&opts.runs_dir.join(&case.id), &keys(case, opts).1)
 }
 
 /// Runs one case (or reads it back when already done).
@@ -232,13 +231,12 @@ pub fn run_case(
     stage: &dyn Fn(&str),
 ) -> Result<CaseResult, BenchError> {
     let dir = opts.runs_dir.join(&case.id);
-    let capture_key = super::cache::capture_key(case);
-    let key = result_key(case, &capture_key, opts.tau_m);
+    let (capture_key, key) = keys(case, opts);
     if let Some(done) = finished(&dir, &key) {
         return Ok(done);
     }
     stage("simulate");
-    let cached = capture_for(&opts.cache_dir, case)?;
+    let cached = capture_for(&opts.cache_dir, case, &capture_key)?;
     let capture = &cached.capture;
     let (truth, truth_normals) = top_surface_with_normals(&cached.truth_mesh, TOP_GRID_M);
     stage("image");
@@ -277,13 +275,7 @@ pub fn run_case(
             method,
             ..case.recon.clone()
         };
-        let started = Instant::now();
         let r = reconstruct_imaged(capture, &config, &imaged, true).map_err(|e| e.to_string());
-        tracing::debug!(
-            "{} {name}: {:.1} s",
-            case.id,
-            started.elapsed().as_secs_f64()
-        );
         outcomes.push((name.into(), r));
     }
     stage("score");
@@ -295,16 +287,17 @@ pub fn run_case(
         };
         let result = match outcome {
             Ok(recon) => {
+                let estimated;
                 let (normals, source) = match &recon.normals {
-                    Some(n) => (n.clone(), "mmnorm"),
-                    None => (
-                        estimate_normals(&recon.points_m, PCA_NEIGHBOURS, PCA_RADIUS_M),
-                        "pca",
-                    ),
+                    Some(n) => (n.as_slice(), "mmnorm"),
+                    None => {
+                        estimated = estimate_normals(&recon.points_m, PCA_NEIGHBOURS, PCA_RADIUS_M);
+                        (estimated.as_slice(), "pca")
+                    }
                 };
                 let (metrics, scores) = evaluate_points(
                     &recon.points_m,
-                    Some(&normals),
+                    Some(normals),
                     &truth,
                     Some(&truth_normals),
                     opts.tau_m,
@@ -313,7 +306,7 @@ pub fn run_case(
                 write_atomically(&ply, &recon.encode_ply())?;
                 let npy_path = dir.join(format!("{name}.scores.npy"));
                 write_atomically(&npy_path, &npy::encode_f64_rows(&score_rows(&scores)))?;
-                clouds.push((name, recon.points_m.clone()));
+                clouds.push((name, recon.points_m.as_slice()));
                 MethodResult {
                     method: name.into(),
                     metrics: Some(metrics),
@@ -335,12 +328,7 @@ pub fn run_case(
         methods.push(result);
     }
     stage("picture");
-    let find = |n: &str| {
-        clouds
-            .iter()
-            .find(|(m, _)| *m == n)
-            .map(|(_, p)| p.as_slice())
-    };
+    let find = |n: &str| clouds.iter().find(|(m, _)| *m == n).map(|(_, p)| *p);
     std::fs::create_dir_all(&opts.scenes_dir).map_err(io(&opts.scenes_dir))?;
     write_scene_png(
         &opts.scenes_dir.join(format!("{}.png", case.id)),
@@ -355,7 +343,7 @@ pub fn run_case(
         scene: case.scene_name.clone(),
         pose: case.pose,
         condition: case.condition,
-        capture_key: cached.key.clone(),
+        capture_key,
         antennas: capture.antennas(),
         simulate_s: cached.simulate_s,
         truth_points: truth.len(),

@@ -23,8 +23,7 @@ pub struct Antennas {
 /// Builds the antennas of a raster; `rx_channels` are the enabled RX channels (IWR1443BOOST
 /// layout only) and `lambda0_m` the wavelength of ADC sample 0.
 pub fn raster_antennas(grid: &ApertureGrid, rx_channels: &[u8], lambda0_m: f64) -> Antennas {
-    let count = |len: f64| (len / grid.spacing_m + 1e-9).floor() as usize + 1;
-    let (columns, rows) = (count(grid.width_m), count(grid.height_m));
+    let (columns, rows) = grid.raster_size();
     let x0 = grid.center_m[0] - (columns - 1) as f64 * grid.spacing_m / 2.0;
     let y0 = grid.center_m[1] - (rows - 1) as f64 * grid.spacing_m / 2.0;
     let offsets: Vec<[f64; 3]> = match grid.layout {

@@ -249,6 +249,14 @@ pub struct ApertureGrid {
     pub pattern: PatternKind,
 }
 
+impl ApertureGrid {
+    /// Raster positions along x and along y.
+    pub fn raster_size(&self) -> (usize, usize) {
+        let count = |len: f64| ((len / self.spacing_m + 1e-9).floor() as usize).saturating_add(1);
+        (count(self.width_m), count(self.height_m))
+    }
+}
+
 /// Numerical settings of the simulator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SimSettings {
@@ -519,16 +527,7 @@ fn resolve_aperture(
     let height_m = c.non_negative("aperture.height_m", a.height_m)?;
     let spacing_m = c.positive("aperture.spacing_m", a.spacing_m.unwrap_or(lambda0_m / 4.0))?;
     c.vec("aperture.center_m", &a.center_m)?;
-    let positions = ((width_m / spacing_m + 1e-9).floor() + 1.0)
-        * ((height_m / spacing_m + 1e-9).floor() + 1.0);
-    if positions > 5.0e6 {
-        return Err(c.fail(
-            "aperture.spacing_m",
-            spacing_m,
-            &format!("gives {positions:.0} positions; at most 5 000 000 are supported"),
-        ));
-    }
-    Ok(ApertureGrid {
+    let grid = ApertureGrid {
         width_m,
         height_m,
         spacing_m,
@@ -540,7 +539,18 @@ fn resolve_aperture(
             Layout::Monostatic => PatternKind::Isotropic,
             Layout::Iwr1443boost => PatternKind::Iwr1443boost,
         }),
-    })
+    };
+    // Float-to-int casts saturate, so an absurd spacing cannot overflow here.
+    let (columns, rows) = grid.raster_size();
+    let positions = columns.saturating_mul(rows);
+    if positions > 5_000_000 {
+        return Err(c.fail(
+            "aperture.spacing_m",
+            spacing_m,
+            &format!("gives {positions} positions; at most 5 000 000 are supported"),
+        ));
+    }
+    Ok(grid)
 }
 
 fn resolve_occluder(
