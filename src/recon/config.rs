@@ -143,6 +143,11 @@ pub struct Optimisation {
     pub cost_pad_factor: usize,
     /// Coordinate-descent sweeps over components at most.
     pub max_sweeps: usize,
+    /// Echoes peaking nearer than the objects' range window removed from each measured chirp
+    /// before the cost, at most (0: none; `recon::near_echo`).
+    pub near_echo_tones: usize,
+    /// A near echo is removed while its peak is at least this fraction of the window's peak.
+    pub near_echo_ratio: f64,
 }
 
 impl Default for Optimisation {
@@ -156,6 +161,8 @@ impl Default for Optimisation {
             ray_step_deg: 0.25,
             cost_pad_factor: 4,
             max_sweeps: 8,
+            near_echo_tones: 4,
+            near_echo_ratio: 0.3,
         }
     }
 }
@@ -344,6 +351,18 @@ impl ReconConfig {
             o.max_sweeps as f64,
             o.max_sweeps >= 1,
             "must be at least 1",
+        )?;
+        check(
+            "optimisation.near_echo_tones",
+            o.near_echo_tones as f64,
+            o.near_echo_tones <= 64,
+            "must lie in 0..=64",
+        )?;
+        check(
+            "optimisation.near_echo_ratio",
+            o.near_echo_ratio,
+            o.near_echo_ratio > 0.0 && o.near_echo_ratio <= 100.0,
+            "must lie in (0, 100]",
         )?;
         let a = &self.auto_volume;
         check(

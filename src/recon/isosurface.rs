@@ -21,7 +21,11 @@
 //!   measured chirp over the antenna's range window (the bins the objects' box can reach), each
 //!   L2-normalised as in the authors' code (the paper leaves amplitude unnormalised, but the
 //!   unknown reflectivity and gain make raw amplitudes incomparable), compared in L1 and summed
-//!   over the antennas. A candidate with no hits scores as a zero spectrum, not NaN.
+//!   over the antennas. A candidate with no hits scores as a zero spectrum, not NaN. Before
+//!   that, echoes that peak nearer than the window (an NLOS capture's cardboard) are removed
+//!   from the measured chirps ([`super::near_echo`]): their leakage would otherwise outweigh the
+//!   objects in the window. Neither the paper nor the authors do this. The strong-return filter
+//!   sees the cleaned windows too.
 //! - **Selection (Eq. 13)**: the minimum cost. Components interact only through the sum of their
 //!   simulated chirps, so the joint minimum is sought by coordinate descent ([`coordinate_descent`]):
 //!   each component starts at its best alone, then sweeps take each component's best given the
@@ -31,11 +35,11 @@
 
 use num_complex::Complex32;
 use rayon::prelude::*;
-use rustfft::FftPlanner;
 use serde::Serialize;
 
 use super::config::Optimisation;
 use super::image::box_round_trip_m;
+use super::near_echo::NearEchoCanceller;
 use super::trace::SampledField;
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
@@ -173,6 +177,9 @@ pub struct OptimisationReport {
     pub seed: u64,
     pub strong_fraction: f64,
     pub qualifying_antennas: usize,
+    /// Antennas whose measured chirp had an echo nearer than the objects removed
+    /// ([`super::near_echo`]): in NLOS, the sheet's.
+    pub near_echo_antennas: usize,
     /// Capture indices of the antennas used.
     pub antennas: Vec<usize>,
     pub rays_per_antenna_mean: f64,
@@ -226,8 +233,13 @@ pub fn simulate_candidates(
         return Err(OptimisationError::NoComponents);
     }
     let t = capture.plan.samples_per_chirp;
-    let fft_len = t * opts.cost_pad_factor;
-    let fft = FftPlanner::<f32>::new().plan_fft_forward(fft_len);
+    let canceller = NearEchoCanceller::new(
+        t,
+        opts.cost_pad_factor,
+        opts.near_echo_tones,
+        opts.near_echo_ratio,
+    );
+    let fft_len = canceller.fft_len();
     let (lo, hi) = union_box(fields);
     let bins_per_m = capture.plan.frequency_step_hz * fft_len as f64 / SPEED_OF_LIGHT_M_PER_S;
     let pad = opts.cost_pad_factor as i64;
@@ -239,25 +251,22 @@ pub fn simulate_candidates(
         let last = b0.max(b1).ceil() as i64 + pad;
         (first, (last - first + 1) as usize)
     };
-    let spectrum = |chirp: &[Complex32], first: i64, len: usize| {
-        let mut buf = vec![Complex32::new(0.0, 0.0); fft_len];
-        buf[..t].copy_from_slice(chirp);
-        fft.process(&mut buf);
-        (0..len)
-            .map(|k| buf[(first + k as i64).rem_euclid(fft_len as i64) as usize])
-            .collect::<Vec<_>>()
+    let measured = |a: usize| {
+        let (first, len) = window_of(a);
+        let (window, removed) = canceller.clean(capture.chirp(a), first, len);
+        (first, window, removed)
     };
     // Peak measured magnitude in each antenna's window.
-    let peaks: Vec<f32> = (0..capture.antennas())
+    let peaks: Vec<(f32, usize)> = (0..capture.antennas())
         .into_par_iter()
         .map(|a| {
-            let (first, len) = window_of(a);
-            spectrum(capture.chirp(a), first, len)
-                .iter()
-                .map(|z| z.norm())
-                .fold(0.0f32, f32::max)
+            let (_, window, removed) = measured(a);
+            let peak = window.iter().map(|z| z.norm()).fold(0.0f32, f32::max);
+            (peak, removed)
         })
         .collect();
+    let near_echo_antennas = peaks.iter().filter(|p| p.1 > 0).count();
+    let peaks: Vec<f32> = peaks.into_iter().map(|p| p.0).collect();
     let strongest = peaks.iter().copied().fold(0.0f32, f32::max);
     if strongest.is_nan() || strongest <= 0.0 {
         return Err(OptimisationError::NoEcho);
@@ -282,11 +291,8 @@ pub fn simulate_candidates(
     let windows: Vec<Window> = chosen
         .iter()
         .map(|&a| {
-            let (first, len) = window_of(a);
-            let magnitudes: Vec<f32> = spectrum(capture.chirp(a), first, len)
-                .iter()
-                .map(|z| z.norm())
-                .collect();
+            let (first, window, _) = measured(a);
+            let magnitudes: Vec<f32> = window.iter().map(|z| z.norm()).collect();
             Window {
                 first,
                 measured: l2_normalised(&magnitudes),
@@ -322,8 +328,9 @@ pub fn simulate_candidates(
                 let mut chirp = vec![Complex32::new(0.0, 0.0); t];
                 tones.add_into(&mut chirp);
                 progress.inc(1);
+                let spectrum = canceller.spectrum(&chirp);
                 (
-                    spectrum(&chirp, windows[j].first, windows[j].measured.len()),
+                    canceller.window(&spectrum, windows[j].first, windows[j].measured.len()),
                     rays,
                 )
             },
@@ -336,6 +343,7 @@ pub fn simulate_candidates(
         seed: opts.seed,
         strong_fraction,
         qualifying_antennas: qualifying_count,
+        near_echo_antennas,
         antennas: chosen,
         windows,
         spectra: simulated.into_iter().map(|s| s.0).collect(),
@@ -350,6 +358,7 @@ pub struct CandidateSpectra {
     seed: u64,
     strong_fraction: f64,
     qualifying_antennas: usize,
+    near_echo_antennas: usize,
     antennas: Vec<usize>,
     windows: Vec<Window>,
     /// [component][candidate][antenna], flattened.
@@ -449,6 +458,7 @@ pub fn optimise(
         seed: problem.seed,
         strong_fraction: problem.strong_fraction,
         qualifying_antennas: problem.qualifying_antennas,
+        near_echo_antennas: problem.near_echo_antennas,
         antennas: problem.antennas.clone(),
         rays_per_antenna_mean: problem.rays_per_antenna_mean,
         sweeps,

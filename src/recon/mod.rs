@@ -10,7 +10,7 @@
 //! - [`components`]: 6-connected components;
 //! - [`rsdf`]: one relative signed distance function per component (Eq. 8);
 //! - [`trace`] and [`isosurface`]: the structural isosurface optimisation (Eq. 11–13) and the
-//!   ablations;
+//!   ablations, with [`near_echo`] removing the echoes nearer than the objects from its cost;
 //! - [`baselines`]: backprojection and interferometric points;
 //! - [`pipeline`]: the stages run in order, with timings, for `mmnormd reconstruct`.
 
@@ -20,6 +20,7 @@ pub mod config;
 pub mod image;
 pub mod isosurface;
 pub mod mask;
+pub mod near_echo;
 pub mod normals;
 pub mod pipeline;
 pub mod rsdf;

@@ -1,0 +1,323 @@
+//! Removal of echoes nearer than the objects from measured chirps, for the isosurface cost.
+//!
+//! The cost (Eq. 12) compares measured and simulated range spectra over the bins the objects'
+//! box can reach. An echo nearer than that window leaks into it through its main lobe and its
+//! range sidelobes (−13 dB for the unwindowed FFT; one raw bin is c/B of round trip, 10 cm at
+//! 3 GHz). Through cardboard (NLOS) that echo is the sheet: specular and broad, it returns
+//! 15–25 dB more than a small object 10 cm behind it, so the measured window holds more sheet
+//! than object and no candidate surface can match it. The simulated chirps hold the components
+//! only, so the measured ones must too.
+//!
+//! [`NearEchoCanceller::clean`] removes the strongest echo that peaks before the window, one at
+//! a time (as CLEAN does), while it is at least `ratio` of the window's own peak and at most
+//! `tones` times. Sidelobes of echoes inside the window stay below 0.22 of them, so with the
+//! default ratio 0.3 they are never taken for near echoes, and a line-of-sight capture is left
+//! untouched. Each echo's frequency is refined by golden-section search on the DTFT magnitude;
+//! its model is that tone times a quadratic in time, fitted by least squares to the spectrum
+//! before the window only, so that the objects pull on the fit through their sidelobes alone
+//! (a fit to the whole chirp absorbs a fifth of an object 2.4 bins behind the sheet). The quadratic
+//! holds what a single tone cannot: a reflection coefficient that changes over the band, as a
+//! slab's Fabry–Pérot Γ(f) does, and the delay spread of echoes closer than a range bin, such
+//! as a sheet's two faces 2·n·t apart (1.3 cm of round trip for 4 mm at n = 1.6: an eighth of a
+//! bin). A single tone leaves a third of such a pair.
+//!
+//! Measured on the accuracy suite's banana-on-its-side capture through cardboard against the
+//! same scene without it (300 antennas, the L1 distance of L2-normalised window magnitudes that
+//! the cost uses): 1.80 median uncleaned, 0.19 after single tones, 0.086 (p90 0.15) after the
+//! quadratic fitted before the window.
+//!
+//! Neither the paper nor the authors' code does this: their scenes keep the box well behind the
+//! cardboard's echo. It is documented in `isosurface.rs` with the cost.
+
+use std::sync::Arc;
+
+use nalgebra::{Matrix3, Vector3};
+use num_complex::{Complex32, Complex64};
+use rustfft::{Fft, FftPlanner};
+
+/// Golden-section iterations per tone: the bracket of two padded bins shrinks by 0.618 each,
+/// to about 1e-4 of a raw bin after 24.
+const GOLDEN_ITERATIONS: usize = 24;
+
+/// Zero-padded range spectra of chirps, with the removal of near echoes.
+pub struct NearEchoCanceller {
+    fft: Arc<dyn Fft<f32>>,
+    samples: usize,
+    fft_len: usize,
+    tones: usize,
+    ratio: f32,
+}
+
+impl NearEchoCanceller {
+    /// Spectra of `samples`-long chirps zero-padded to `samples·pad_factor`; `tones` echoes at
+    /// most are removed per chirp (0: none), each while it is at least `ratio` of the window's
+    /// peak.
+    pub fn new(samples: usize, pad_factor: usize, tones: usize, ratio: f64) -> NearEchoCanceller {
+        let fft_len = samples * pad_factor.max(1);
+        NearEchoCanceller {
+            fft: FftPlanner::<f32>::new().plan_fft_forward(fft_len),
+            samples,
+            fft_len,
+            tones,
+            ratio: ratio as f32,
+        }
+    }
+
+    /// Padded FFT length.
+    pub fn fft_len(&self) -> usize {
+        self.fft_len
+    }
+
+    /// The padded spectrum of `chirp`.
+    pub fn spectrum(&self, chirp: &[Complex32]) -> Vec<Complex32> {
+        let mut buf = vec![Complex32::new(0.0, 0.0); self.fft_len];
+        let n = chirp.len().min(self.samples);
+        buf[..n].copy_from_slice(&chirp[..n]);
+        self.fft.process(&mut buf);
+        buf
+    }
+
+    /// Bins `first..first + len` of a padded spectrum (indices wrap, as the FFT does).
+    pub fn window(&self, spectrum: &[Complex32], first: i64, len: usize) -> Vec<Complex32> {
+        let l = self.fft_len as i64;
+        (0..len)
+            .map(|k| spectrum[(first + k as i64).rem_euclid(l) as usize])
+            .collect()
+    }
+
+    /// The window `first..first + len` of `chirp`'s padded spectrum after removing the echoes
+    /// that peak before `first`, and how many were removed.
+    pub fn clean(&self, chirp: &[Complex32], first: i64, len: usize) -> (Vec<Complex32>, usize) {
+        let mut spectrum = self.spectrum(chirp);
+        let before = first.clamp(0, self.fft_len as i64) as usize;
+        if self.tones == 0 || before < 2 {
+            return (self.window(&spectrum, first, len), 0);
+        }
+        let mut residual: Vec<Complex32> = chirp[..chirp.len().min(self.samples)].to_vec();
+        let mut removed = 0;
+        while removed < self.tones {
+            let inside = self
+                .window(&spectrum, first, len)
+                .iter()
+                .map(|z| z.norm())
+                .fold(0.0f32, f32::max);
+            let Some((peak_bin, peak)) = spectrum[..before]
+                .iter()
+                .map(|z| z.norm())
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+            else {
+                break;
+            };
+            if !(peak >= self.ratio * inside) || peak <= 0.0 {
+                break;
+            }
+            let nu = self.refine(&residual, peak_bin);
+            if !self.subtract_modulated_tone(&mut residual, &mut spectrum, nu, before) {
+                break;
+            }
+            removed += 1;
+        }
+        (self.window(&spectrum, first, len), removed)
+    }
+
+    /// Fits e^{+j2πνt}·(a0 + a1·τ + a2·τ²), τ = t/N − ½, to the spectrum's bins below
+    /// `before` by least squares and subtracts it from the chirp `x` and its `spectrum`. The
+    /// fit ignores the window and everything past it, so the objects' own echoes pull on it
+    /// only through their sidelobes. False when the fit is singular (nothing is changed).
+    fn subtract_modulated_tone(
+        &self,
+        x: &mut [Complex32],
+        spectrum: &mut [Complex32],
+        nu: f64,
+        before: usize,
+    ) -> bool {
+        let n = x.len();
+        let carrier = |t: usize| Complex64::from_polar(1.0, std::f64::consts::TAU * nu * t as f64);
+        let tau = |t: usize| t as f64 / n as f64 - 0.5;
+        let basis: [Vec<Complex64>; 3] =
+            std::array::from_fn(|p| (0..n).map(|t| carrier(t) * tau(t).powi(p as i32)).collect());
+        let spectra: [Vec<Complex32>; 3] = std::array::from_fn(|p| {
+            let b: Vec<Complex32> = basis[p]
+                .iter()
+                .map(|z| Complex32::new(z.re as f32, z.im as f32))
+                .collect();
+            self.spectrum(&b)
+        });
+        let wide = |z: Complex32| Complex64::new(f64::from(z.re), f64::from(z.im));
+        let mut gram = Matrix3::<Complex64>::zeros();
+        let mut rhs = Vector3::<Complex64>::zeros();
+        for k in 0..before {
+            let column = [0, 1, 2].map(|p| wide(spectra[p][k]));
+            for p in 0..3 {
+                for q in 0..3 {
+                    gram[(p, q)] += column[p].conj() * column[q];
+                }
+                rhs[p] += column[p].conj() * wide(spectrum[k]);
+            }
+        }
+        let Some(a) = gram.lu().solve(&rhs) else {
+            return false;
+        };
+        if a.iter().any(|z| !(z.re.is_finite() && z.im.is_finite())) {
+            return false;
+        }
+        for (t, z) in x.iter_mut().enumerate() {
+            let w: Complex64 = (0..3).map(|p| a[p] * basis[p][t]).sum();
+            *z -= Complex32::new(w.re as f32, w.im as f32);
+        }
+        let a32 = a.map(|z| Complex32::new(z.re as f32, z.im as f32));
+        for (k, z) in spectrum.iter_mut().enumerate() {
+            *z -= a32[0] * spectra[0][k] + a32[1] * spectra[1][k] + a32[2] * spectra[2][k];
+        }
+        true
+    }
+
+    /// The frequency (cycles per sample) of the DTFT magnitude's maximum within one padded bin
+    /// of `bin`.
+    fn refine(&self, x: &[Complex32], bin: usize) -> f64 {
+        let l = self.fft_len as f64;
+        let (mut lo, mut hi) = ((bin as f64 - 1.0) / l, (bin as f64 + 1.0) / l);
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let mut a = hi - g * (hi - lo);
+        let mut b = lo + g * (hi - lo);
+        let (mut fa, mut fb) = (dtft(x, a).norm(), dtft(x, b).norm());
+        for _ in 0..GOLDEN_ITERATIONS {
+            if fa > fb {
+                hi = b;
+                b = a;
+                fb = fa;
+                a = hi - g * (hi - lo);
+                fa = dtft(x, a).norm();
+            } else {
+                lo = a;
+                a = b;
+                fa = fb;
+                b = lo + g * (hi - lo);
+                fb = dtft(x, b).norm();
+            }
+        }
+        0.5 * (lo + hi)
+    }
+}
+
+/// Σ_t x_t·exp(−j2πνt), in f64.
+fn dtft(x: &[Complex32], nu: f64) -> Complex64 {
+    let step = Complex64::from_polar(1.0, -std::f64::consts::TAU * nu);
+    let mut phasor = Complex64::new(1.0, 0.0);
+    let mut sum = Complex64::new(0.0, 0.0);
+    for (t, z) in x.iter().enumerate() {
+        if t % 64 == 0 {
+            // Re-seed the recurrence so its rounding does not build up.
+            phasor = Complex64::from_polar(1.0, -std::f64::consts::TAU * nu * t as f64);
+        }
+        sum += Complex64::new(f64::from(z.re), f64::from(z.im)) * phasor;
+        phasor *= step;
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::signal::Rng;
+
+    fn tone(n: usize, amplitude: Complex64, nu: f64) -> Vec<Complex32> {
+        (0..n)
+            .map(|t| {
+                let w =
+                    amplitude * Complex64::from_polar(1.0, std::f64::consts::TAU * nu * t as f64);
+                Complex32::new(w.re as f32, w.im as f32)
+            })
+            .collect()
+    }
+
+    fn add(a: &mut [Complex32], b: &[Complex32]) {
+        for (x, y) in a.iter_mut().zip(b) {
+            *x += y;
+        }
+    }
+
+    /// A strong off-grid "sheet" tone 2.4 raw bins before a weak "object" tone: its leakage
+    /// dominates the object's window (error over 50 % of the object's peak) until it is
+    /// removed, after which the window matches the object's own spectrum within 10 % (6.5 %).
+    #[test]
+    fn removes_a_strong_near_echo_and_keeps_the_object() {
+        let (n, pad) = (512usize, 4usize);
+        let canceller = NearEchoCanceller::new(n, pad, 4, 0.3);
+        let l = (n * pad) as f64;
+        let sheet_bin = 81.37; // padded bins
+        let object_bin = sheet_bin + 2.4 * pad as f64;
+        let object = tone(n, Complex64::new(0.0, 10.0), object_bin / l);
+        let mut measured = tone(n, Complex64::from_polar(200.0, 0.7), sheet_bin / l);
+        add(&mut measured, &object);
+        let mut rng = Rng::new(5);
+        for z in &mut measured {
+            let (re, im) = rng.normal_pair();
+            *z += Complex32::new(0.05 * re as f32, 0.05 * im as f32);
+        }
+        let first = object_bin.floor() as i64 - pad as i64 - 2;
+        let len = 3 * pad;
+        let truth: Vec<f32> = canceller
+            .window(&canceller.spectrum(&object), first, len)
+            .iter()
+            .map(|z| z.norm())
+            .collect();
+        let error = |w: &[Complex32]| {
+            w.iter()
+                .zip(&truth)
+                .map(|(z, t)| (z.norm() - t).abs())
+                .fold(0.0f32, f32::max)
+                / truth.iter().copied().fold(0.0f32, f32::max)
+        };
+        let raw = canceller.window(&canceller.spectrum(&measured), first, len);
+        assert!(
+            error(&raw) > 0.5,
+            "the sheet should dominate: {}",
+            error(&raw)
+        );
+        let (clean, removed) = canceller.clean(&measured, first, len);
+        assert!(removed >= 1, "{removed}");
+        assert!(error(&clean) < 0.1, "{}", error(&clean));
+    }
+
+    /// An echo inside the window and its sidelobes before it: nothing is removed.
+    #[test]
+    fn leaves_a_line_of_sight_window_alone() {
+        let (n, pad) = (512usize, 4usize);
+        let canceller = NearEchoCanceller::new(n, pad, 4, 0.3);
+        let object_bin = 200.6;
+        let object = tone(n, Complex64::new(3.0, -2.0), object_bin / (n * pad) as f64);
+        let first = object_bin as i64 - pad as i64;
+        let (clean, removed) = canceller.clean(&object, first, 4 * pad);
+        assert_eq!(removed, 0);
+        assert_eq!(
+            clean,
+            canceller.window(&canceller.spectrum(&object), first, 4 * pad)
+        );
+    }
+
+    /// A sheet seen as two faces of opposite sign an eighth of a raw bin apart (4 mm at
+    /// n = 1.6): what leaks into the window after removal is a few percent of before.
+    #[test]
+    fn two_unresolved_faces_are_removed_too() {
+        let (n, pad) = (512usize, 4usize);
+        let canceller = NearEchoCanceller::new(n, pad, 4, 0.3);
+        let l = (n * pad) as f64;
+        let mut measured = tone(n, Complex64::from_polar(100.0, 0.2), 60.3 / l);
+        add(
+            &mut measured,
+            &tone(n, Complex64::from_polar(-60.0, 0.2), 60.8 / l),
+        );
+        let first = 60 + 3 * pad as i64;
+        let (clean, removed) = canceller.clean(&measured, first, 4 * pad);
+        assert!(removed >= 1);
+        let peak = clean.iter().map(|z| z.norm()).fold(0.0f32, f32::max);
+        let before = canceller
+            .window(&canceller.spectrum(&measured), first, 4 * pad)
+            .iter()
+            .map(|z| z.norm())
+            .fold(0.0f32, f32::max);
+        assert!(peak < before * 0.03, "{peak} vs {before}");
+    }
+}
