@@ -140,7 +140,7 @@ pub fn box_round_trip_m(tx: &[f64; 3], rx: &[f64; 3], lo: [f64; 3], hi: [f64; 3]
 
 /// Smallest and largest round trip from any antenna to any point of `grid`, metres
 /// (range offset not included).
-fn round_trip_bounds(capture: &Capture, grid: &VoxelGrid) -> (f64, f64) {
+pub(crate) fn round_trip_bounds(capture: &Capture, grid: &VoxelGrid) -> (f64, f64) {
     let (lo, hi) = grid.extent();
     let mut bounds = (f64::INFINITY, 0.0f64);
     for (tx, rx) in capture.tx_m.iter().zip(&capture.rx_m) {

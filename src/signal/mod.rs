@@ -4,9 +4,11 @@
 //! convention of [`crate::capture`]. [`Rng`] is the project's seeded generator: its output is fixed
 //! by this code, not by a dependency's version, so a seed means the same files forever.
 
+pub mod czt;
 mod rng;
 mod tones;
 
+pub use czt::{Czt, CztAxes, fft_friendly};
 pub use rng::Rng;
 pub use tones::ToneAccumulator;
 
