@@ -5,7 +5,7 @@ mod cli;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
-use mmnormd::recon::config::{Isosurface, VolumeSpec};
+use mmnormd::recon::config::{Imaging, Isosurface, VolumeSpec};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -82,6 +82,10 @@ enum Command {
         /// How mmNorm picks each component's isosurface [default: optimized].
         #[arg(long, value_enum)]
         isosurface: Option<Isosurface>,
+        /// How S(v) is formed [default: auto, or recon.toml's]: `auto` takes range migration
+        /// when the phase centres form a raster and says why in summary.json.
+        #[arg(long, value_enum)]
+        imaging: Option<Imaging>,
         /// Parameters (TOML); every key is optional. See the README.
         #[arg(long)]
         config: Option<PathBuf>,
@@ -147,6 +151,7 @@ fn main() -> std::process::ExitCode {
             out,
             method,
             isosurface,
+            imaging,
             config,
             voxel_mm,
             volume,
@@ -158,6 +163,7 @@ fn main() -> std::process::ExitCode {
             cli::reconstruct::Overrides {
                 method,
                 isosurface,
+                imaging,
                 voxel_mm,
                 volume,
             },

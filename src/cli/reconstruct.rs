@@ -4,7 +4,7 @@ use anyhow::{Context, Result, bail};
 use mmnormd::capture::dir::write_atomically;
 use mmnormd::capture::read_capture_dir;
 use mmnormd::preview::ScalarImage;
-use mmnormd::recon::config::{Isosurface, Method, VolumeSpec};
+use mmnormd::recon::config::{Imaging, Isosurface, Method, VolumeSpec};
 use mmnormd::recon::image::VoxelGrid;
 use mmnormd::recon::{ReconConfig, Reconstruction, image_volume, reconstruct_imaged};
 use serde_json::json;
@@ -23,6 +23,7 @@ pub enum MethodChoice {
 pub struct Overrides {
     pub method: Option<MethodChoice>,
     pub isosurface: Option<Isosurface>,
+    pub imaging: Option<Imaging>,
     pub voxel_mm: Option<f64>,
     pub volume: Option<VolumeSpec>,
 }
@@ -58,6 +59,9 @@ pub fn run(
     if let Some(i) = overrides.isosurface {
         config.isosurface = i;
     }
+    if let Some(i) = overrides.imaging {
+        config.imaging = i;
+    }
     if let Some(mm) = overrides.voxel_mm {
         config.voxel_m = mm * 1e-3;
     }
@@ -86,6 +90,9 @@ pub fn run(
         );
     }
     let capture = read_capture_dir(capture_dir)?;
+    // The image is formed for the first method (mmNorm when it is among them: it alone needs
+    // the spectral votes).
+    config.method = methods[0];
     let imaged = image_volume(&capture, &config, quiet)?;
     for method in methods {
         config.method = method;

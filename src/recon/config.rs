@@ -18,6 +18,18 @@ pub enum Method {
     Interferometric,
 }
 
+/// How S(v) is formed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Imaging {
+    /// Range migration when the phase centres form a raster, backprojection otherwise.
+    Auto,
+    /// Range migration (ω-k, `recon::rma`); fails on a capture that is not a raster.
+    Rma,
+    /// Interpolated backprojection (`recon::image`).
+    Backprojection,
+}
+
 /// How each component's isosurface constant is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -173,6 +185,14 @@ impl Default for Optimisation {
 pub struct ReconConfig {
     pub method: Method,
     pub isosurface: Isosurface,
+    /// How S(v) is formed: `auto` takes range migration for raster captures.
+    pub imaging: Imaging,
+    /// With range migration, the normal field comes from the spectrum (`recon::rma`) instead of
+    /// exact per-antenna votes (unit candidates only).
+    pub spectral_normals: bool,
+    /// A capture is a raster when every phase centre lies within this fraction of the spacing
+    /// of its lattice node (`recon::lattice`).
+    pub raster_tolerance: f64,
     pub volume: VolumeSpec,
     /// Voxel edge, metres (paper: 1 mm).
     pub voxel_m: f64,
@@ -209,6 +229,9 @@ impl Default for ReconConfig {
         ReconConfig {
             method: Method::Mmnorm,
             isosurface: Isosurface::Optimized,
+            imaging: Imaging::Auto,
+            spectral_normals: true,
+            raster_tolerance: 0.1,
             volume: VolumeSpec::Auto,
             voxel_m: 0.001,
             pad_factor: 32,
@@ -308,6 +331,12 @@ impl ReconConfig {
             self.fallback_component_m3,
             self.fallback_component_m3 >= 0.0,
             "must not be negative",
+        )?;
+        check(
+            "raster_tolerance",
+            self.raster_tolerance,
+            self.raster_tolerance > 0.0 && self.raster_tolerance <= 0.5,
+            "must lie in (0, 0.5]",
         )?;
         let o = &self.optimisation;
         check(

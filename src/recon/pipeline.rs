@@ -14,8 +14,10 @@ use serde::Serialize;
 
 use super::baselines::{backprojection_points, interferometric_points};
 use super::components::label_6;
-use super::config::{Integration, Isosurface, Method, ReconConfig};
+use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
+use super::lattice::{NotRaster, detect};
+use super::rma::{RmaReport, rma_image};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, optimise, weighted_constant,
 };
@@ -41,6 +43,8 @@ pub enum ReconError {
     Mask(#[from] MaskError),
     #[error(transparent)]
     Optimisation(#[from] OptimisationError),
+    #[error("imaging = \"rma\" needs a raster aperture: {0}")]
+    NotRaster(#[from] NotRaster),
     #[error(
         "no connected high-power component of at least {fallback_voxels} voxels ({fallback_m3:e} m³) in the volume"
     )]
@@ -77,6 +81,9 @@ pub struct MaskSummary {
 pub struct Summary {
     pub method: Method,
     pub isosurface: Option<Isosurface>,
+    pub imaging: ImagingReport,
+    /// mmNorm's normal votes: "spectral" (from the range-migration spectrum) or "exact".
+    pub normal_votes: Option<&'static str>,
     pub antennas: usize,
     pub samples_per_chirp: usize,
     pub grid: VoxelGrid,
@@ -127,13 +134,29 @@ impl Reconstruction {
     }
 }
 
+/// How the image was formed, for summary.json.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImagingReport {
+    pub requested: Imaging,
+    /// `rma` or `backprojection`.
+    pub used: Imaging,
+    /// Why `auto` chose what it did.
+    pub reason: String,
+    pub rma: Option<RmaReport>,
+}
+
 /// The volume and its image, shared by every method.
 pub struct Imaged {
     pub grid: VoxelGrid,
     pub auto_volume: Option<AutoReport>,
-    pub profiles: RangeProfiles,
+    /// The cropped range profiles, when backprojection made the image (exact votes reuse them).
+    pub profiles: Option<RangeProfiles>,
     pub image: Vec<Complex32>,
     pub magnitude: Vec<f32>,
+    /// Range migration's spectral vote vectors `Re(conj(S)·Σ_j I_j u_j)/|S|`, when it made the
+    /// image for mmNorm with unit candidates and `spectral_normals`.
+    pub votes: Option<Vec<[f32; 3]>>,
+    pub imaging: ImagingReport,
     /// Times of the shared stages (volume, image).
     stages: Vec<(String, f64)>,
 }
@@ -171,10 +194,51 @@ pub fn image_volume(
         grid.origin_m
     );
     stages.lap("volume");
-    let profiles = RangeProfiles::new(capture, &grid, config.pad_factor);
-    let progress = Progress::new("image", grid.dims[0] as u64, quiet);
-    let image = backproject(capture, &grid, &profiles, Some(&progress));
-    progress.finish();
+    let lattice = match config.imaging {
+        Imaging::Backprojection => Err("imaging = \"backprojection\"".to_string()),
+        Imaging::Rma => Ok(detect(capture, config.raster_tolerance)?),
+        Imaging::Auto => detect(capture, config.raster_tolerance).map_err(|e| e.to_string()),
+    };
+    let want_votes = config.method == Method::Mmnorm
+        && config.unit_candidates
+        && config.spectral_normals;
+    let (image, profiles, votes, imaging) = match lattice {
+        Ok(lattice) => {
+            let rma = rma_image(capture, &grid, &lattice, want_votes, quiet);
+            let reason = format!(
+                "the phase centres form a {}×{} raster of {:.3}×{:.3} mm (largest snap {:.3} mm)",
+                lattice.dims[0],
+                lattice.dims[1],
+                lattice.spacing_m[0] * 1e3,
+                lattice.spacing_m[1] * 1e3,
+                lattice.max_lateral_offset_m * 1e3
+            );
+            tracing::info!("imaging: range migration; {reason}");
+            let report = ImagingReport {
+                requested: config.imaging,
+                used: Imaging::Rma,
+                reason,
+                rma: Some(rma.report),
+            };
+            (rma.image, None, rma.votes, report)
+        }
+        Err(reason) => {
+            if config.imaging == Imaging::Auto {
+                tracing::info!("imaging: backprojection; not a raster: {reason}");
+            }
+            let profiles = RangeProfiles::new(capture, &grid, config.pad_factor);
+            let progress = Progress::new("image", grid.dims[0] as u64, quiet);
+            let image = backproject(capture, &grid, &profiles, Some(&progress));
+            progress.finish();
+            let report = ImagingReport {
+                requested: config.imaging,
+                used: Imaging::Backprojection,
+                reason,
+                rma: None,
+            };
+            (image, Some(profiles), None, report)
+        }
+    };
     let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
     stages.lap("image");
     Ok(Imaged {
@@ -183,6 +247,8 @@ pub fn image_volume(
         profiles,
         image,
         magnitude,
+        votes,
+        imaging,
         stages: stages.list,
     })
 }
@@ -229,17 +295,7 @@ pub fn reconstruct_imaged(
             (points, None, vec![0; n])
         }
         Method::Mmnorm => {
-            let fields = mmnorm_fields(
-                capture,
-                config,
-                &grid,
-                &imaged.profiles,
-                &imaged.image,
-                magnitude,
-                quiet,
-                &mut summary,
-                &mut stages,
-            )?;
+            let fields = mmnorm_fields(capture, config, imaged, quiet, &mut summary, &mut stages)?;
             mmnorm_points(
                 capture,
                 config,
@@ -276,10 +332,7 @@ pub fn reconstruct_isosurfaces(
     let fields = mmnorm_fields(
         capture,
         &config,
-        &grid,
-        &imaged.profiles,
-        &imaged.image,
-        &imaged.magnitude,
+        imaged,
         quiet,
         &mut shared_summary,
         &mut stages,
@@ -334,6 +387,8 @@ fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (S
     let summary = Summary {
         method: config.method,
         isosurface: (config.method == Method::Mmnorm).then_some(config.isosurface),
+        imaging: imaged.imaging.clone(),
+        normal_votes: None,
         antennas: capture.antennas(),
         samples_per_chirp: capture.plan.samples_per_chirp,
         grid: imaged.grid,
@@ -385,18 +440,16 @@ struct Fields {
     step_m: f64,
 }
 
-#[allow(clippy::too_many_arguments)]
 fn mmnorm_fields(
     capture: &Capture,
     config: &ReconConfig,
-    grid: &VoxelGrid,
-    profiles: &RangeProfiles,
-    image: &[Complex32],
-    magnitude: &[f32],
+    imaged: &Imaged,
     quiet: bool,
     summary: &mut Summary,
     stages: &mut Stages,
 ) -> Result<Fields, ReconError> {
+    let grid = &imaged.grid;
+    let (image, magnitude) = (&imaged.image, &imaged.magnitude);
     let candidates_kind = if config.unit_candidates {
         Candidates::Unit
     } else {
@@ -411,17 +464,39 @@ fn mmnorm_fields(
         config.max_mask_box_m3,
     )?;
     stages.lap("mask");
-    let progress = Progress::new("normals", grid.dims[0] as u64, quiet);
-    let normals = normal_field(
-        capture,
-        grid,
-        profiles,
-        image,
-        &mask.mask,
-        candidates_kind,
-        Some(&progress),
-    );
-    progress.finish();
+    let spectral = imaged
+        .votes
+        .as_ref()
+        .filter(|_| candidates_kind == Candidates::Unit && config.spectral_normals);
+    let normals = match spectral {
+        Some(votes) => {
+            summary.normal_votes = Some("spectral");
+            normalised_votes(votes, &mask.mask)
+        }
+        None => {
+            summary.normal_votes = Some("exact");
+            let built;
+            let profiles = match &imaged.profiles {
+                Some(p) => p,
+                None => {
+                    built = RangeProfiles::new(capture, grid, config.pad_factor);
+                    &built
+                }
+            };
+            let progress = Progress::new("normals", grid.dims[0] as u64, quiet);
+            let normals = normal_field(
+                capture,
+                grid,
+                profiles,
+                image,
+                &mask.mask,
+                candidates_kind,
+                Some(&progress),
+            );
+            progress.finish();
+            normals
+        }
+    };
     stages.lap("normals");
 
     let voxel_m3 = grid.voxel_m.powi(3);
@@ -573,6 +648,22 @@ fn mmnorm_points(
 }
 
 /// The flat index in `grid` of the voxel centred at `p` (a centre of a sub-grid of `grid`).
+/// Unit normals from vote vectors where `selected` (NaN elsewhere and where the votes vanish).
+fn normalised_votes(votes: &[[f32; 3]], selected: &[bool]) -> Vec<[f32; 3]> {
+    votes
+        .iter()
+        .zip(selected)
+        .map(|(w, &on)| {
+            let len = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+            if on && len > 0.0 {
+                w.map(|c| c / len)
+            } else {
+                [f32::NAN; 3]
+            }
+        })
+        .collect()
+}
+
 fn flat_index(grid: &VoxelGrid, p: &[f64; 3]) -> usize {
     let [_, ny, nz] = grid.dims;
     let i = [0, 1, 2].map(|a| ((p[a] - grid.origin_m[a]) / grid.voxel_m).round() as usize);

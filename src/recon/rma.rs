@@ -86,13 +86,14 @@ const OVERSAMPLING: usize = 4;
 const GATE_MARGIN_BINS: f64 = 2.0;
 const GATE_EDGE_BINS: f64 = 2.0;
 
-/// Images `grid` from a raster capture; with `votes`, the spectral vote field as well.
+/// Images `grid` from a raster capture; with `votes`, the spectral vote field as well. The
+/// progress bar counts kz planes, then one step per field for the kz → z transforms.
 pub fn rma_image(
     capture: &Capture,
     grid: &VoxelGrid,
     lattice: &Lattice,
     votes: bool,
-    progress: Option<&Progress>,
+    quiet: bool,
 ) -> RmaImage {
     let plan = capture.plan;
     let t_len = plan.samples_per_chirp;
@@ -216,6 +217,7 @@ pub fn rma_image(
 
     // 5. Per kz plane: Stolt, then chirp-z along kx and ky onto the voxel centres.
     let fields = if votes { 4 } else { 1 };
+    let progress = Progress::new("image (range migration)", (nkz + fields) as u64, quiet);
     let [vx, vy, vz] = grid.dims;
     let dkx = TAU / (nfx as f64 * dx);
     let dky = TAU / (nfy as f64 * dy);
@@ -269,9 +271,7 @@ pub fn rma_image(
                 for f in 0..fields {
                     scratch.to_voxels(f, &czt_x, &czt_y, &mut out[f * plane_len..(f + 1) * plane_len]);
                 }
-                if let Some(p) = progress {
-                    p.inc(1);
-                }
+                progress.inc(1);
             },
         );
     drop(spectrum);
@@ -312,6 +312,7 @@ pub fn rma_image(
             || (Vec::new(), Vec::new()),
             |(buf, s), (xy, out)| column(0, out, xy, buf, s),
         );
+    progress.inc(1);
     let votes = votes.then(|| {
         let mut votes = vec![[0.0f32; 3]; grid.len()];
         votes
@@ -334,8 +335,10 @@ pub fn rma_image(
                     }
                 },
             );
+        progress.inc(3);
         votes
     });
+    progress.finish();
     let max_sin = (1.0 - cos_max * cos_max).sqrt();
     RmaImage {
         image,
@@ -578,7 +581,7 @@ mod tests {
             voxel_m: 0.001,
             dims: [25, 24, 21],
         };
-        let rma = rma_image(&capture, &grid, &lattice, false, None);
+        let rma = rma_image(&capture, &grid, &lattice, false, true);
         let profiles = RangeProfiles::new(&capture, &grid, 32);
         let bp = backproject(&capture, &grid, &profiles, None);
         let (ma, mb): (Vec<f32>, Vec<f32>) =
@@ -618,7 +621,7 @@ mod tests {
                 voxel_m: 0.0015,
                 dims: [34, 34, 22],
             };
-            let rma = rma_image(&capture, &grid, &lattice, true, None);
+            let rma = rma_image(&capture, &grid, &lattice, true, true);
             let profiles = RangeProfiles::new(&capture, &grid, 32);
             let bp = backproject(&capture, &grid, &profiles, None);
             let (ma, mb): (Vec<f32>, Vec<f32>) =
