@@ -116,6 +116,9 @@ enum BenchCommand {
     /// The paper's evaluation (§6.2–§6.3) over a suite of simulated scenes: results.csv,
     /// report.md, CDF plots and one picture per case.
     Accuracy(cli::bench::AccuracyArgs),
+    /// The pipeline on the paper's full-scale workload (60×45 cm at λ/4, 4 RX, 8.3·10⁷ voxels),
+    /// stage by stage, against the exact reference on a sub-volume in the same run.
+    Perf(cli::bench::PerfArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -173,6 +176,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench {
             which: BenchCommand::Accuracy(a),
         } => cli::bench::accuracy(a, args.quiet),
+        Command::Bench {
+            which: BenchCommand::Perf(a),
+        } => cli::bench::perf(a, args.quiet),
         Command::Profile { cfg } => cli::profile::run(&cfg),
     };
     match result {

@@ -1,14 +1,16 @@
-//! The accuracy benchmark (`mmnormd bench accuracy`): the paper's evaluation (§6.2–§6.3) over a
-//! suite of simulated scenes.
+//! The benchmarks. `mmnormd bench accuracy` is the paper's evaluation (§6.2–§6.3) over a suite
+//! of simulated scenes; `mmnormd bench perf` times the pipeline at full scale.
 //!
 //! - [`suite`]: the suite file and its expansion into cases (scene × pose × condition);
 //! - [`cache`]: simulated captures cached by content hash;
 //! - [`run`]: each case simulated, imaged once, reconstructed by every method and scored,
 //!   several cases at a time within a memory budget, resumable;
 //! - [`report`]: `results.csv`, the CDF plots and `report.md` beside the paper's figures;
-//! - [`scene_png`]: one picture per case (Fig. 10 style).
+//! - [`scene_png`]: one picture per case (Fig. 10 style);
+//! - [`perf`]: `mmnormd bench perf`, the full-scale speed benchmark.
 
 pub mod cache;
+pub mod perf;
 pub mod report;
 pub mod run;
 pub mod scene_png;

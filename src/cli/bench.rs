@@ -1,6 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use mmnormd::bench::perf::{PerfReport, run_perf};
 use mmnormd::bench::{BenchOptions, Suite, run_suite};
 
 #[derive(clap::Args)]
@@ -30,6 +31,70 @@ pub struct AccuracyArgs {
     /// Markdown with a hand-written analysis of the run, included in the report.
     #[arg(long)]
     notes: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct PerfArgs {
+    /// Every length of the workload times this (the wavelength stays): 1 is the paper's.
+    #[arg(long, default_value_t = 1.0)]
+    scale: f64,
+    /// Edge of the reference cube, voxels.
+    #[arg(long, default_value_t = 24)]
+    reference_edge: usize,
+    /// Print the report as one JSON object on the last line of standard output.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn perf(a: PerfArgs, quiet: bool) -> Result<()> {
+    let report = run_perf(a.scale, a.reference_edge, quiet)?;
+    print_perf(&report);
+    if a.json {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    Ok(())
+}
+
+fn print_perf(r: &PerfReport) {
+    let w = &r.workload;
+    println!(
+        "workload: {} channels × {} samples ({:.1} GB), grid {:?} = {:.2e} voxels, synthesised in {:.1} s",
+        w.channels,
+        w.samples_per_chirp,
+        w.capture_bytes as f64 / 1e9,
+        w.grid_dims,
+        w.voxels as f64,
+        w.synthesis_s
+    );
+    println!("imaging: {}, normal votes: {}", r.imaging, r.normal_votes.unwrap_or("-"));
+    println!("| stage | s |\n|---|---|");
+    for (name, s) in &r.stages {
+        println!("| {name} | {:.2} |", s.as_f64().unwrap_or(f64::NAN));
+    }
+    println!("| **total** | **{:.2}** |", r.total_s);
+    if let Some(e) = &r.error {
+        println!("the pipeline stopped: {e}");
+    }
+    let f = &r.reference;
+    println!(
+        "peak RSS {:.2} GB; reference on {} voxels: backprojection {:.2} s ({:.2e} updates/s), exact votes on {} voxels {:.2} s ({:.2e} updates/s)",
+        r.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
+        f.sub_voxels,
+        f.backprojection_s,
+        f.backprojection_updates_per_s,
+        f.vote_voxels,
+        f.exact_votes_s,
+        f.exact_votes_updates_per_s
+    );
+    println!(
+        "reference extrapolated to the full grid: {:.0} s; speed-up {:.0}×",
+        f.extrapolated_total_s, f.speedup
+    );
+    let p = &r.parity;
+    println!(
+        "parity on the cube: |S| correlation {:.4}, peaks {} voxel(s) apart, normal cosine median {:.4} (p10 {:.4})",
+        p.image_magnitude_correlation, p.peak_offset_voxels, p.normal_cosine_median, p.normal_cosine_p10
+    );
 }
 
 /// Memory available to new work (MemAvailable), bytes; None off Linux.

@@ -72,6 +72,8 @@ pub struct MaskSummary {
     pub normal_floor: f64,
     pub exponent: f64,
     pub attempts: Vec<MaskAttempt>,
+    /// Voxels in the mask: those that got a normal.
+    pub voxels: usize,
     pub min_component_voxels: usize,
     pub used_fallback_size: bool,
 }
@@ -464,6 +466,7 @@ fn mmnorm_fields(
         config.max_mask_box_m3,
     )?;
     stages.lap("mask");
+    let mask_voxels = mask.mask.iter().filter(|&&m| m).count();
     let spectral = imaged
         .votes
         .as_ref()
@@ -519,6 +522,7 @@ fn mmnorm_fields(
         normal_floor: config.normal_floor,
         exponent: mask.exponent,
         attempts: mask.attempts,
+        voxels: mask_voxels,
         min_component_voxels: min_voxels,
         used_fallback_size: used_fallback,
     });

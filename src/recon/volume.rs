@@ -30,7 +30,7 @@ use crate::signal::{Rng, hann_window};
 const MIN_BLOB_VOXELS: usize = 27;
 
 /// The largest fine grid accepted, voxels (about 1.3 GB of image and normals).
-pub const MAX_VOXELS: usize = 60_000_000;
+pub const MAX_VOXELS: usize = 100_000_000;
 
 /// Why no volume could be set up.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
