@@ -20,6 +20,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
 
+use super::kernel::Tile;
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::progress::Progress;
@@ -189,14 +190,14 @@ impl RangeProfiles {
 
 /// The per-antenna matched filter I_j(v) of Eq. 4 in f32, from cropped range profiles.
 pub struct MatchedFilter<'a> {
-    profiles: &'a RangeProfiles,
-    tx: Vec<[f32; 3]>,
-    rx: Vec<[f32; 3]>,
-    turns_per_m: f32,
-    bins_per_m: f32,
-    offset_m: f32,
-    first: f32,
-    last: f32,
+    pub(super) profiles: &'a RangeProfiles,
+    pub(super) tx: Vec<[f32; 3]>,
+    pub(super) rx: Vec<[f32; 3]>,
+    pub(super) turns_per_m: f32,
+    pub(super) bins_per_m: f32,
+    pub(super) offset_m: f32,
+    pub(super) first: f32,
+    pub(super) last: f32,
 }
 
 impl<'a> MatchedFilter<'a> {
@@ -281,16 +282,24 @@ pub fn backproject(
     let scale = 1.0 / n.max(1) as f32;
     grid.par_slabs(Complex32::new(0.0, 0.0), progress, |_, centres, slab| {
         // Antenna-outer over L1-sized tiles of voxels: the tile's sums stay in L1 and one
-        // antenna's profile row stays in cache across the tile.
-        for (tile, tile_centres) in slab.chunks_mut(TILE).zip(centres.chunks(TILE)) {
+        // antenna's profile row stays in cache across the tile (`recon::kernel`).
+        let mut tile = Tile::default();
+        let (mut sum_re, mut sum_im) = (vec![0.0f32; TILE], vec![0.0f32; TILE]);
+        for (out, tile_centres) in slab.chunks_mut(TILE).zip(centres.chunks(TILE)) {
+            tile.load(tile_centres.iter().copied());
+            let m = tile.len();
+            sum_re[..m].fill(0.0);
+            sum_im[..m].fill(0.0);
             for a in 0..n {
-                for (o, v) in tile.iter_mut().zip(tile_centres) {
-                    *o += filter.response(a, *v);
+                filter.tile_responses(a, &mut tile);
+                for i in 0..m {
+                    sum_re[i] += tile.re[i];
+                    sum_im[i] += tile.im[i];
                 }
             }
-        }
-        for o in slab.iter_mut() {
-            *o *= scale;
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = Complex32::new(sum_re[i], sum_im[i]) * scale;
+            }
         }
     })
 }

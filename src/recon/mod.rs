@@ -19,6 +19,7 @@ pub mod components;
 pub mod config;
 pub mod image;
 pub mod isosurface;
+pub mod kernel;
 pub mod lattice;
 pub mod mask;
 pub mod near_echo;

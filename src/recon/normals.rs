@@ -12,7 +12,8 @@
 
 use num_complex::Complex32;
 
-use super::image::{MatchedFilter, RangeProfiles, VoxelGrid};
+use super::image::{MatchedFilter, RangeProfiles, TILE, VoxelGrid};
+use super::kernel::Tile;
 use crate::capture::Capture;
 use crate::progress::Progress;
 
@@ -53,28 +54,37 @@ pub fn normal_field(
                 (selected[i * plane + k] && magnitude > 0.0).then_some((k, s, magnitude))
             })
             .collect();
-        let mut sums = vec![[0.0f32; 3]; active.len()];
-        // Antenna-outer, as in the image, for cache locality.
-        for (a, c) in centres.iter().enumerate() {
-            for (sum, &(k, s, magnitude)) in sums.iter_mut().zip(&active) {
-                let v = voxel_centres[k];
-                let response = filter.response(a, v);
-                // Eq. 6: projection of I_j onto S.
-                let w = (response.re * s.re + response.im * s.im) / magnitude;
-                let d = [c[0] - v[0], c[1] - v[1], c[2] - v[2]];
-                let scale = match candidates {
-                    Candidates::Unit => w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
-                    Candidates::Displacement => w,
-                };
-                for q in 0..3 {
-                    sum[q] += scale * d[q];
+        // Antenna-outer over tiles, as in the image (`recon::kernel`).
+        let mut tile = Tile::default();
+        for chunk in active.chunks(TILE) {
+            tile.load(chunk.iter().map(|&(k, _, _)| voxel_centres[k]));
+            let m = chunk.len();
+            // S/|S|, so that Eq. 6's projection is a dot product.
+            let unit_re: Vec<f32> = chunk.iter().map(|&(_, s, mag)| s.re / mag).collect();
+            let unit_im: Vec<f32> = chunk.iter().map(|&(_, s, mag)| s.im / mag).collect();
+            let mut sums = [vec![0.0f32; m], vec![0.0f32; m], vec![0.0f32; m]];
+            for (a, c) in centres.iter().enumerate() {
+                filter.tile_responses(a, &mut tile);
+                let [sx, sy, sz] = &mut sums;
+                for i in 0..m {
+                    // Eq. 6: projection of I_j onto S.
+                    let w = tile.re[i] * unit_re[i] + tile.im[i] * unit_im[i];
+                    let d = [c[0] - tile.x[i], c[1] - tile.y[i], c[2] - tile.z[i]];
+                    let scale = match candidates {
+                        Candidates::Unit => w / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+                        Candidates::Displacement => w,
+                    };
+                    sx[i] += scale * d[0];
+                    sy[i] += scale * d[1];
+                    sz[i] += scale * d[2];
                 }
             }
-        }
-        for (sum, &(k, _, _)) in sums.iter().zip(&active) {
-            let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
-            if len > 0.0 {
-                slab[k] = sum.map(|c| c / len);
+            for (i, &(k, _, _)) in chunk.iter().enumerate() {
+                let sum = [sums[0][i], sums[1][i], sums[2][i]];
+                let len = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
+                if len > 0.0 {
+                    slab[k] = sum.map(|c| c / len);
+                }
             }
         }
     })
