@@ -17,6 +17,7 @@
 //! changes nothing but the floating-point range.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::image::VoxelGrid;
@@ -66,13 +67,13 @@ pub fn li_mask(
         return Err(MaskError::EmptyImage);
     }
     let relative: Vec<f64> = magnitude
-        .iter()
+        .par_iter()
         .map(|&m| f64::from(m) / f64::from(peak))
         .collect();
     let mut attempts = Vec::new();
     let mut best: Option<(f64, Vec<bool>, f64)> = None; // (box, mask, exponent)
     for &e in exponents {
-        let powered: Vec<f64> = relative.iter().map(|r| r.powf(e)).collect();
+        let powered: Vec<f64> = relative.par_iter().map(|r| r.powf(e)).collect();
         let Ok(li) = li_threshold(&powered, max_iterations) else {
             attempts.push(MaskAttempt {
                 exponent: e,
@@ -85,7 +86,7 @@ pub fn li_mask(
             continue;
         };
         let mask: Vec<bool> = relative
-            .iter()
+            .par_iter()
             .zip(&powered)
             .map(|(&r, &p)| r > floor_fraction && p >= li.threshold)
             .collect();

@@ -145,6 +145,20 @@ pub fn rma_image(
     let range_fft = planner.plan_fft_forward(t_len);
     let decimated_ifft = planner.plan_fft_inverse(m_len);
     let k_of = |t: usize| TAU * plan.frequency_hz(t) / c;
+    let dk_signed = TAU * plan.frequency_step_hz / c;
+    // The gate's weight of each kept bin, the same for every antenna.
+    let half = (m_len / 2) as i64;
+    let kept: Vec<(usize, usize, f32)> = (0..m_len as i64)
+        .map(|m| {
+            let offset = m - half;
+            let b = centre_bin + offset;
+            (
+                b.rem_euclid(t_len as i64) as usize,
+                offset.rem_euclid(m_len as i64) as usize,
+                gate(b as f64) as f32 / t_len as f32,
+            )
+        })
+        .collect();
     // Per node: the sum of its antennas' gated, decimated chirps (M samples).
     let mut node_chirps = vec![Complex32::new(0.0, 0.0); nodes * m_len];
     node_chirps
@@ -159,23 +173,23 @@ pub fn rma_image(
                     let extra_m = capture.range_offset_m
                         + baseline2 / (4.0 * reference_depth_m.max(1e-3))
                         + 2.0 * lattice.offset_m[a][2];
+                    // exp(−j k_t extra) by a rotator in f64, re-seeded every 64 samples.
+                    let step = Complex64::from_polar(1.0, -dk_signed * extra_m);
+                    let mut w = Complex64::new(1.0, 0.0);
                     for (t, (f, h)) in full.iter_mut().zip(capture.chirp(a)).enumerate() {
-                        let phase = (-k_of(t) * extra_m).rem_euclid(TAU);
-                        let w = Complex64::from_polar(1.0, phase);
+                        if t % 64 == 0 {
+                            w = Complex64::from_polar(1.0, (-k_of(t) * extra_m).rem_euclid(TAU));
+                        }
                         *f = h * Complex32::new(w.re as f32, w.im as f32);
+                        w *= step;
                     }
                     range_fft.process(full);
-                    let half = (m_len / 2) as i64;
-                    for m in 0..m_len as i64 {
-                        let offset = m - half;
-                        let b = centre_bin + offset;
-                        let v = full[b.rem_euclid(t_len as i64) as usize] * gate(b as f64) as f32;
-                        short[offset.rem_euclid(m_len as i64) as usize] = v;
+                    for &(bin, slot, weight) in &kept {
+                        short[slot] = full[bin] * weight;
                     }
                     decimated_ifft.process(short);
-                    let scale = 1.0 / t_len as f32;
                     for (o, s) in out.iter_mut().zip(short.iter()) {
-                        *o += s * scale;
+                        *o += s;
                     }
                 }
             },
@@ -256,7 +270,7 @@ pub fn rma_image(
         centre_bin,
         t_len,
         k0: k_of(0),
-        dk_signed: TAU * plan.frequency_step_hz / c,
+        dk_signed,
         z_m: lattice.z_m,
         weight_base,
     };

@@ -15,6 +15,8 @@
 //! committed fixtures.
 
 /// The threshold and how many updates it took.
+use rayon::prelude::*;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LiThreshold {
     pub threshold: f64,
@@ -56,7 +58,7 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
         *v -= min;
     }
     let tolerance = half_smallest_gap(&image);
-    let mut t_next = mean(image.iter().copied());
+    let mut t_next = image.par_iter().sum::<f64>() / image.len() as f64;
     let mut t_curr = -2.0 * tolerance;
     let mut iterations = 0;
     while (t_next - t_curr).abs() > tolerance {
@@ -64,9 +66,8 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
             return Err(LiError::NotConverged(max_iterations));
         }
         t_curr = t_next;
-        let mean_fore = mean(image.iter().copied().filter(|&v| v > t_curr));
         // The values are finite here, so `<=` is the exact complement of `>`.
-        let mean_back = mean(image.iter().copied().filter(|&v| v <= t_curr));
+        let (mean_fore, mean_back) = split_means(&image, t_curr);
         if mean_back == 0.0 {
             break;
         }
@@ -80,15 +81,26 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
 }
 
 /// Mean of the values; NaN for none (as numpy's mean of an empty selection).
-fn mean(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, count) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    sum / count as f64
+/// The means of the values above `t` and of those at or below it, in one parallel pass.
+fn split_means(values: &[f64], t: f64) -> (f64, f64) {
+    let zero = || (0.0f64, 0usize, 0.0f64, 0usize);
+    let (fore, n_fore, back, n_back) = values
+        .par_iter()
+        .fold(zero, |(f, nf, b, nb), &v| {
+            if v > t {
+                (f + v, nf + 1, b, nb)
+            } else {
+                (f, nf, b + v, nb + 1)
+            }
+        })
+        .reduce(zero, |x, y| (x.0 + y.0, x.1 + y.1, x.2 + y.2, x.3 + y.3));
+    (fore / n_fore as f64, back / n_back as f64)
 }
 
 /// Half the smallest gap between distinct values (at least two distinct values exist).
 fn half_smallest_gap(values: &[f64]) -> f64 {
     let mut sorted = values.to_vec();
-    sorted.sort_by(f64::total_cmp);
+    sorted.par_sort_unstable_by(f64::total_cmp);
     sorted.dedup();
     sorted
         .windows(2)
