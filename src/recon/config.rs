@@ -486,7 +486,20 @@ mod tests {
             .map(|i| i + "```toml\n".len())
             .expect("the README has the default recon.toml");
         let end = start + readme[start..].find("```").unwrap();
-        let parsed = ReconConfig::parse(&readme[start..end]).unwrap();
+        let block = &readme[start..end];
+        let parsed = ReconConfig::parse(block).unwrap();
+        // Every key is listed, not only left to its default.
+        let defaults = serde_json::to_value(ReconConfig::default()).unwrap();
+        let mut keys = Vec::new();
+        for (key, value) in defaults.as_object().unwrap() {
+            match value.as_object() {
+                Some(table) => keys.extend(table.keys().cloned()),
+                None => keys.push(key.clone()),
+            }
+        }
+        for key in keys {
+            assert!(block.contains(&format!("\n{key} = ")) || block.starts_with(&format!("{key} = ")), "the README's defaults omit {key}");
+        }
         assert_eq!(
             serde_json::to_value(&parsed).unwrap(),
             serde_json::to_value(ReconConfig::default()).unwrap()

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::image::VoxelGrid;
-use super::threshold::li_threshold;
+use super::threshold::{half_smallest_sorted_gap, li_threshold_with_gap};
 
 /// One exponent's attempt.
 #[derive(Debug, Clone, Serialize)]
@@ -70,11 +70,18 @@ pub fn li_mask(
         .par_iter()
         .map(|&m| f64::from(m) / f64::from(peak))
         .collect();
+    // r ↦ r^e keeps the order of the values, so one sort serves every exponent's stopping
+    // tolerance (half the smallest gap between distinct values).
+    let mut sorted: Vec<f64> = relative.par_iter().copied().filter(|r| r.is_finite()).collect();
+    sorted.par_sort_unstable_by(f64::total_cmp);
     let mut attempts = Vec::new();
     let mut best: Option<(f64, Vec<bool>, f64)> = None; // (box, mask, exponent)
     for &e in exponents {
         let powered: Vec<f64> = relative.par_iter().map(|r| r.powf(e)).collect();
-        let Ok(li) = li_threshold(&powered, max_iterations) else {
+        let powered_sorted: Vec<f64> = sorted.par_iter().map(|r| r.powf(e)).collect();
+        let half_gap = half_smallest_sorted_gap(&powered_sorted);
+        drop(powered_sorted);
+        let Ok(li) = li_threshold_with_gap(&powered, Some(half_gap), max_iterations) else {
             attempts.push(MaskAttempt {
                 exponent: e,
                 threshold: None,

@@ -447,7 +447,6 @@ struct PlaneScratch {
     fields: Vec<Vec<Complex32>>,
     rows: Vec<Complex32>,
     line_in: Vec<Complex32>,
-    line_out: Vec<Complex32>,
     czt: Vec<Complex32>,
 }
 
@@ -458,7 +457,6 @@ impl PlaneScratch {
             fields: vec![vec![Complex32::new(0.0, 0.0); nfx * nfy]; fields],
             rows: Vec::new(),
             line_in: Vec::new(),
-            line_out: Vec::new(),
             czt: Vec::new(),
         }
     }
@@ -477,15 +475,20 @@ impl PlaneScratch {
                 czt_x.apply(row_in, row_out, &mut self.czt);
             }
         }
-        // Along ky for every x.
-        self.line_in.resize(nfy, Complex32::new(0.0, 0.0));
-        self.line_out.resize(vy, Complex32::new(0.0, 0.0));
-        for x in 0..vx {
-            for ky in 0..nfy {
-                self.line_in[ky] = self.rows[ky * vx + x];
+        // Along ky for every x, from a blocked transpose of the rows: columns[x·nfy + ky].
+        self.line_in.resize(nfy * vx, Complex32::new(0.0, 0.0));
+        const BLOCK: usize = 32;
+        for ky0 in (0..nfy).step_by(BLOCK) {
+            for x0 in (0..vx).step_by(BLOCK) {
+                for ky in ky0..(ky0 + BLOCK).min(nfy) {
+                    for x in x0..(x0 + BLOCK).min(vx) {
+                        self.line_in[x * nfy + ky] = self.rows[ky * vx + x];
+                    }
+                }
             }
-            czt_y.apply(&self.line_in, &mut self.line_out, &mut self.czt);
-            out[x * vy..(x + 1) * vy].copy_from_slice(&self.line_out);
+        }
+        for (column, o) in self.line_in.chunks(nfy).zip(out.chunks_mut(vy)) {
+            czt_y.apply(column, o, &mut self.czt);
         }
     }
 }
@@ -498,11 +501,27 @@ impl Stolt<'_> {
         let (hx, hy) = ((nfx / 2) as i64, (nfy / 2) as i64);
         let m_len = self.m_len as i64;
         let z_phase = Complex64::from_polar(1.0, (-kz * self.z_m).rem_euclid(TAU));
+        for field in &mut scratch.fields {
+            field.fill(Complex32::new(0.0, 0.0));
+        }
+        // Only (kx, ky) with 2k = |K| inside the sweep carry data: an annulus per plane.
+        let (k_a, k_b) = (self.k0, self.k0 + self.dk_signed * (self.t_len - 1) as f64);
+        let outer2 = 4.0 * k_a.max(k_b).powi(2) - kz * kz;
+        if outer2 <= 0.0 {
+            return;
+        }
         for sy in 0..nfy {
             // Shifted index sy ↔ ky = (sy − hy)·Δky, stored in FFT order at (sy + nfy − hy) mod nfy.
             let ky = (sy as i64 - hy) as f64 * self.dk_xy[1];
             let py = (sy as i64 - hy).rem_euclid(nfy as i64) as usize;
-            for sx in 0..nfx {
+            let room = outer2 - ky * ky;
+            if room <= 0.0 {
+                continue;
+            }
+            let kx_max = room.sqrt() / self.dk_xy[0];
+            let sx_lo = (hx - kx_max.floor() as i64 - 1).max(0) as usize;
+            let sx_hi = ((hx + kx_max.ceil() as i64 + 1) as usize).min(nfx);
+            for sx in sx_lo..sx_hi {
                 let kx = (sx as i64 - hx) as f64 * self.dk_xy[0];
                 let px = (sx as i64 - hx).rem_euclid(nfx as i64) as usize;
                 let slot = sy * nfx + sx;

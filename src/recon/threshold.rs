@@ -36,7 +36,17 @@ pub enum LiError {
 /// after 1000). Equal values return that value; values that are all ±∞ return 0, as in
 /// scikit-image.
 pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold, LiError> {
-    let not_nan: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
+    li_threshold_with_gap(values, None, max_iterations)
+}
+
+/// [`li_threshold`] with the stopping tolerance (half the smallest gap between distinct finite
+/// values) given, when the caller knows it without sorting `values`; None computes it.
+pub fn li_threshold_with_gap(
+    values: &[f64],
+    half_gap: Option<f64>,
+    max_iterations: usize,
+) -> Result<LiThreshold, LiError> {
+    let not_nan: Vec<f64> = values.par_iter().copied().filter(|v| !v.is_nan()).collect();
     let Some(&first) = not_nan.first() else {
         return Err(LiError::Empty);
     };
@@ -46,18 +56,16 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
             iterations: 0,
         });
     }
-    let mut image: Vec<f64> = not_nan.into_iter().filter(|v| v.is_finite()).collect();
+    let mut image: Vec<f64> = not_nan.into_par_iter().filter(|v| v.is_finite()).collect();
     if image.is_empty() {
         return Ok(LiThreshold {
             threshold: 0.0,
             iterations: 0,
         });
     }
-    let min = image.iter().copied().fold(f64::INFINITY, f64::min);
-    for v in &mut image {
-        *v -= min;
-    }
-    let tolerance = half_smallest_gap(&image);
+    let min = image.par_iter().copied().reduce(|| f64::INFINITY, f64::min);
+    image.par_iter_mut().for_each(|v| *v -= min);
+    let tolerance = half_gap.unwrap_or_else(|| half_smallest_gap(&image));
     let mut t_next = image.par_iter().sum::<f64>() / image.len() as f64;
     let mut t_curr = -2.0 * tolerance;
     let mut iterations = 0;
@@ -98,6 +106,16 @@ fn split_means(values: &[f64], t: f64) -> (f64, f64) {
 }
 
 /// Half the smallest gap between distinct values (at least two distinct values exist).
+/// Half the smallest positive difference between consecutive values of an ascending slice.
+pub fn half_smallest_sorted_gap(sorted: &[f64]) -> f64 {
+    sorted
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|g| *g > 0.0)
+        .fold(f64::INFINITY, f64::min)
+        / 2.0
+}
+
 fn half_smallest_gap(values: &[f64]) -> f64 {
     let mut sorted = values.to_vec();
     sorted.par_sort_unstable_by(f64::total_cmp);
@@ -112,6 +130,17 @@ fn half_smallest_gap(values: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A tolerance from an order-preserving copy's sort gives the same threshold as sorting.
+    #[test]
+    fn a_given_gap_gives_the_same_threshold() {
+        let mut rng = crate::signal::Rng::new(4);
+        let values: Vec<f64> = (0..5000).map(|_| rng.uniform().powi(3)).collect();
+        let mut sorted = values.clone();
+        sorted.sort_by(f64::total_cmp);
+        let given = li_threshold_with_gap(&values, Some(half_smallest_sorted_gap(&sorted)), 1000);
+        assert_eq!(given, li_threshold(&values, 1000));
+    }
 
     #[test]
     fn degenerate_inputs_follow_scikit_image() {
