@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::image::VoxelGrid;
-use super::threshold::{half_smallest_sorted_gap, li_threshold_with_gap};
+use super::threshold::li_threshold_sorted;
 
 /// One exponent's attempt.
 #[derive(Debug, Clone, Serialize)]
@@ -70,18 +70,16 @@ pub fn li_mask(
         .par_iter()
         .map(|&m| f64::from(m) / f64::from(peak))
         .collect();
-    // r ↦ r^e keeps the order of the values, so one sort serves every exponent's stopping
-    // tolerance (half the smallest gap between distinct values).
+    // r ↦ r^e keeps the order of the values, so one sort serves every exponent.
     let mut sorted: Vec<f64> = relative.par_iter().copied().filter(|r| r.is_finite()).collect();
     sorted.par_sort_unstable_by(f64::total_cmp);
     let mut attempts = Vec::new();
     let mut best: Option<(f64, Vec<bool>, f64)> = None; // (box, mask, exponent)
     for &e in exponents {
-        let powered: Vec<f64> = relative.par_iter().map(|r| r.powf(e)).collect();
         let powered_sorted: Vec<f64> = sorted.par_iter().map(|r| r.powf(e)).collect();
-        let half_gap = half_smallest_sorted_gap(&powered_sorted);
+        let li = li_threshold_sorted(&powered_sorted, max_iterations);
         drop(powered_sorted);
-        let Ok(li) = li_threshold_with_gap(&powered, Some(half_gap), max_iterations) else {
+        let Ok(li) = li else {
             attempts.push(MaskAttempt {
                 exponent: e,
                 threshold: None,
@@ -94,8 +92,7 @@ pub fn li_mask(
         };
         let mask: Vec<bool> = relative
             .par_iter()
-            .zip(&powered)
-            .map(|(&r, &p)| r > floor_fraction && p >= li.threshold)
+            .map(|&r| r > floor_fraction && r.powf(e) >= li.threshold)
             .collect();
         let box_m3 = oriented_box_m3(&mask, grid);
         let accepted = box_m3 <= max_box_m3;
