@@ -24,6 +24,7 @@ fn smoke_suite_scores_mmnorm_above_its_floor_and_ahead_of_backprojection() {
         command: "test".into(),
         report_only: false,
         notes: None,
+        includes: Vec::new(),
         quiet: true,
     };
     let outcome = run_suite(&suite, out.path(), &opts).expect("bench runs");

@@ -72,6 +72,8 @@ pub struct BenchOptions {
     pub report_only: bool,
     /// A markdown file of hand-written analysis to include in the report.
     pub notes: Option<PathBuf>,
+    /// Markdown files included verbatim before the plots (e.g. `bench perf --markdown`'s).
+    pub includes: Vec<PathBuf>,
     pub quiet: bool,
 }
 
@@ -126,6 +128,11 @@ pub fn run_suite(
         )),
         None => None,
     };
+    let includes = opts
+        .includes
+        .iter()
+        .map(|p| std::fs::read_to_string(p).map_err(io(p)))
+        .collect::<Result<Vec<_>, _>>()?;
     report::write_csv(&results, out)?;
     let stats = report::gather(&results, &run_opts.runs_dir)?;
     let plots = report::write_plots(&stats, out)?;
@@ -152,6 +159,7 @@ pub fn run_suite(
         cases: suite.cases.len(),
         failed_cases: failed_cases.clone(),
         notes,
+        includes,
     };
     let md = report::report_md(&info, &results, &stats, &plots, &|f| f.to_string());
     write_atomically(&out.join("report.md"), md.as_bytes())?;

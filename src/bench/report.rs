@@ -366,6 +366,8 @@ pub struct RunInfo {
     pub failed_cases: Vec<(String, String)>,
     /// Hand-written analysis (markdown) appended to the report, with the file it came from.
     pub notes: Option<(String, String)>,
+    /// Further markdown sections (such as `bench perf --markdown`'s), included before the plots.
+    pub includes: Vec<String>,
 }
 
 /// `report.md`. `link` turns a file name of the output directory into the link to use (so the
@@ -578,6 +580,9 @@ cases only; the others are listed at the end. Running the same command again res
             f_of(1),
             f_of(2),
         );
+    }
+    for text in &info.includes {
+        let _ = writeln!(md, "\n{}", text.trim_end());
     }
     let _ = writeln!(md, "\n## Plots\n");
     for (name, caption) in plots {

@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
-use mmnormd::bench::perf::{PerfReport, run_perf};
+use mmnormd::bench::perf::{PerfReport, markdown, run_perf};
 use mmnormd::bench::{BenchOptions, Suite, run_suite};
 
 #[derive(clap::Args)]
@@ -31,6 +31,10 @@ pub struct AccuracyArgs {
     /// Markdown with a hand-written analysis of the run, included in the report.
     #[arg(long)]
     notes: Option<PathBuf>,
+    /// Markdown included verbatim before the plots, such as `bench perf --markdown`'s section
+    /// (repeatable).
+    #[arg(long)]
+    include: Vec<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -44,11 +48,22 @@ pub struct PerfArgs {
     /// Print the report as one JSON object on the last line of standard output.
     #[arg(long)]
     json: bool,
+    /// Also write the report as a Markdown section (for `bench accuracy --include`).
+    #[arg(long)]
+    markdown: Option<PathBuf>,
 }
 
 pub fn perf(a: PerfArgs, quiet: bool) -> Result<()> {
     let report = run_perf(a.scale, a.reference_edge, quiet)?;
     print_perf(&report);
+    if let Some(path) = &a.markdown {
+        let command = std::iter::once("mmnormd".to_string())
+            .chain(std::env::args().skip(1))
+            .collect::<Vec<_>>()
+            .join(" ");
+        mmnormd::capture::dir::write_atomically(path, markdown(&report, &command).as_bytes())
+            .map_err(|e| anyhow::anyhow!("--markdown {}: {e}", path.display()))?;
+    }
     if a.json {
         println!("{}", serde_json::to_string(&report)?);
     }
@@ -121,6 +136,9 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
     {
         bail!("--notes {}: no such file", n.display());
     }
+    if let Some(n) = a.include.iter().find(|n| !n.is_file()) {
+        bail!("--include {}: no such file", n.display());
+    }
     let jobs = a.jobs.unwrap_or(2);
     if jobs == 0 {
         bail!("--jobs 0: give at least 1");
@@ -149,6 +167,7 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
             command,
             report_only: a.report_only,
             notes: a.notes,
+            includes: a.include,
             quiet,
         },
     )?;
