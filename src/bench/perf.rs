@@ -351,7 +351,7 @@ pub fn markdown(r: &PerfReport, command: &str) -> String {
     );
     let _ = writeln!(
         md,
-        "| parity: |S| correlation ≥ 0.99, peak within 1 voxel, normal cosine median ≥ 0.99 | {:.4}, {}, {:.4} | {} |",
+        "| parity: \\|S\\| correlation ≥ 0.99, peak within 1 voxel, normal cosine median ≥ 0.99 | {:.4}, {}, {:.4} | {} |",
         p.image_magnitude_correlation,
         p.peak_offset_voxels,
         p.normal_cosine_median,
