@@ -163,9 +163,8 @@ pub fn run_perf(scale: f64, reference_edge: usize, quiet: bool) -> Result<PerfRe
         voxel_m: grid.voxel_m,
         dims: sub_dims,
     };
-    let full_index = |i: usize, j: usize, k: usize| {
-        ((start[0] + i) * ny + start[1] + j) * nz + start[2] + k
-    };
+    let full_index =
+        |i: usize, j: usize, k: usize| ((start[0] + i) * ny + start[1] + j) * nz + start[2] + k;
     let clock = Instant::now();
     let profiles = RangeProfiles::new(&capture, &sub, config.pad_factor);
     let profiles_s = clock.elapsed().as_secs_f64();
@@ -220,8 +219,18 @@ pub fn run_perf(scale: f64, reference_edge: usize, quiet: bool) -> Result<PerfRe
             .copied()
             .unwrap_or(f64::NAN)
     };
-    let argmax = |m: &[f32]| (0..m.len()).max_by(|&a, &b| m[a].total_cmp(&m[b])).unwrap_or(0);
-    let ijk = |p: usize| [p / (sub_dims[1] * sub_dims[2]), p / sub_dims[2] % sub_dims[1], p % sub_dims[2]];
+    let argmax = |m: &[f32]| {
+        (0..m.len())
+            .max_by(|&a, &b| m[a].total_cmp(&m[b]))
+            .unwrap_or(0)
+    };
+    let ijk = |p: usize| {
+        [
+            p / (sub_dims[1] * sub_dims[2]),
+            p / sub_dims[2] % sub_dims[1],
+            p % sub_dims[2],
+        ]
+    };
     let (pa, pb) = (ijk(argmax(&fast_magnitude)), ijk(argmax(&sub_magnitude)));
     let parity = Parity {
         image_magnitude_correlation: correlation(&fast_magnitude, &sub_magnitude),
@@ -341,8 +350,17 @@ pub fn markdown(r: &PerfReport, command: &str) -> String {
     let verdict = |ok: bool| if ok { "met" } else { "**missed**" };
     let rss = r.peak_rss_bytes.map_or(f64::NAN, |b| b as f64 / 1e9);
     let _ = writeln!(md, "| target | ours | |\n|---|---|---|");
-    let _ = writeln!(md, "| full pipeline ≤ 60 s | {:.1} s | {} |", r.total_s, verdict(r.total_s <= 60.0));
-    let _ = writeln!(md, "| peak RSS ≤ 12 GB | {rss:.1} GB | {} |", verdict(rss <= 12.0));
+    let _ = writeln!(
+        md,
+        "| full pipeline ≤ 60 s | {:.1} s | {} |",
+        r.total_s,
+        verdict(r.total_s <= 60.0)
+    );
+    let _ = writeln!(
+        md,
+        "| peak RSS ≤ 12 GB | {rss:.1} GB | {} |",
+        verdict(rss <= 12.0)
+    );
     let _ = writeln!(
         md,
         "| exact kernel ≥ 1.5·10⁹ updates/s | {:.2e} | {} |",
@@ -365,7 +383,11 @@ pub fn markdown(r: &PerfReport, command: &str) -> String {
 }
 
 fn correlation(a: &[f32], b: &[f32]) -> f64 {
-    let dot: f64 = a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum();
+    let dot: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| f64::from(*x) * f64::from(*y))
+        .sum();
     let na: f64 = a.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
     let nb: f64 = b.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
     dot / (na * nb)
@@ -381,10 +403,20 @@ pub fn peak_rss_bytes() -> Option<u64> {
 
 /// One object of the analytic scene.
 enum Object {
-    Sphere { centre: [f64; 3], radius: f64 },
+    Sphere {
+        centre: [f64; 3],
+        radius: f64,
+    },
     /// Lying along y.
-    Cylinder { axis: [f64; 3], radius: f64, half_length: f64 },
-    Point { at: [f64; 3], amplitude: f64 },
+    Cylinder {
+        axis: [f64; 3],
+        radius: f64,
+        half_length: f64,
+    },
+    Point {
+        at: [f64; 3],
+        amplitude: f64,
+    },
 }
 
 impl Object {
@@ -411,7 +443,11 @@ impl Object {
                 }
                 let v = [c[0] - axis[0], 0.0, c[2] - axis[2]];
                 let l = norm(v);
-                let p = [axis[0] + v[0] * radius / l, c[1], axis[2] + v[2] * radius / l];
+                let p = [
+                    axis[0] + v[0] * radius / l,
+                    c[1],
+                    axis[2] + v[2] * radius / l,
+                ];
                 let d = l - radius;
                 // One radius is infinite: the line reflector's √(ρ·d)/d².
                 Some((p, (radius * d).sqrt() / (d * d)))
@@ -486,32 +522,32 @@ fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]), PerfError>
     // amplitude A sums to A·T, complex noise of σ per part to σ·√(2T).
     let echo = 0.06 * s / (z_aperture - 0.14 * s).powi(2);
     let sigma = echo * (t_len as f64).sqrt() / (2f64.sqrt() * 10f64.powf(25.0 / 20.0));
-    samples
-        .par_chunks_mut(t_len)
-        .enumerate()
-        .for_each_init(
-            || ToneAccumulator::new(&plan, DEFAULT_RANGE_OFFSET_M),
-            |tones, (a, out)| {
-                tones.clear();
-                let (tx, rx) = (tx_m[a], rx_m[a]);
-                let centre = [0, 1, 2].map(|q| 0.5 * (tx[q] + rx[q]));
-                let dist = |p: [f64; 3], q: [f64; 3]| {
-                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
-                };
-                for o in &objects {
-                    if let Some((p, amplitude)) = o.echo(centre) {
-                        tones.add(Complex32::new(amplitude as f32, 0.0), dist(tx, p) + dist(p, rx));
-                    }
+    samples.par_chunks_mut(t_len).enumerate().for_each_init(
+        || ToneAccumulator::new(&plan, DEFAULT_RANGE_OFFSET_M),
+        |tones, (a, out)| {
+            tones.clear();
+            let (tx, rx) = (tx_m[a], rx_m[a]);
+            let centre = [0, 1, 2].map(|q| 0.5 * (tx[q] + rx[q]));
+            let dist = |p: [f64; 3], q: [f64; 3]| {
+                ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+            };
+            for o in &objects {
+                if let Some((p, amplitude)) = o.echo(centre) {
+                    tones.add(
+                        Complex32::new(amplitude as f32, 0.0),
+                        dist(tx, p) + dist(p, rx),
+                    );
                 }
-                tones.add_into(out);
-                let mut rng = Rng::for_stream(2026, 7, a as u64);
-                for z in out.iter_mut() {
-                    let (re, im) = rng.normal_pair();
-                    *z += Complex32::new((sigma * re) as f32, (sigma * im) as f32);
-                }
-                progress.inc(1);
-            },
-        );
+            }
+            tones.add_into(out);
+            let mut rng = Rng::for_stream(2026, 7, a as u64);
+            for z in out.iter_mut() {
+                let (re, im) = rng.normal_pair();
+                *z += Complex32::new((sigma * re) as f32, (sigma * im) as f32);
+            }
+            progress.inc(1);
+        },
+    );
     progress.finish();
     let capture = Capture {
         plan,
@@ -524,14 +560,7 @@ fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]), PerfError>
     };
     Ok((
         capture,
-        [
-            -0.275 * s,
-            0.275 * s,
-            -0.30 * s,
-            0.30 * s,
-            0.0,
-            0.25 * s,
-        ],
+        [-0.275 * s, 0.275 * s, -0.30 * s, 0.30 * s, 0.0, 0.25 * s],
     ))
 }
 
@@ -549,8 +578,16 @@ mod tests {
         assert_eq!(report.normal_votes, Some("spectral"));
         assert!(report.error.is_none(), "{:?}", report.error);
         assert!(report.total_s > 0.0 && report.exact_updates_per_s > 0.0);
-        assert!(report.parity.image_magnitude_correlation >= 0.99, "{:?}", report.parity);
+        assert!(
+            report.parity.image_magnitude_correlation >= 0.99,
+            "{:?}",
+            report.parity
+        );
         assert!(report.parity.peak_offset_voxels <= 1, "{:?}", report.parity);
-        assert!(report.parity.normal_cosine_median >= 0.99, "{:?}", report.parity);
+        assert!(
+            report.parity.normal_cosine_median >= 0.99,
+            "{:?}",
+            report.parity
+        );
     }
 }

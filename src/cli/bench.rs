@@ -81,7 +81,11 @@ fn print_perf(r: &PerfReport) {
         w.voxels as f64,
         w.synthesis_s
     );
-    println!("imaging: {}, normal votes: {}", r.imaging, r.normal_votes.unwrap_or("-"));
+    println!(
+        "imaging: {}, normal votes: {}",
+        r.imaging,
+        r.normal_votes.unwrap_or("-")
+    );
     println!("| stage | s |\n|---|---|");
     for (name, s) in &r.stages {
         println!("| {name} | {:.2} |", s.as_f64().unwrap_or(f64::NAN));
@@ -108,7 +112,10 @@ fn print_perf(r: &PerfReport) {
     let p = &r.parity;
     println!(
         "parity on the cube: |S| correlation {:.4}, peaks {} voxel(s) apart, normal cosine median {:.4} (p10 {:.4})",
-        p.image_magnitude_correlation, p.peak_offset_voxels, p.normal_cosine_median, p.normal_cosine_p10
+        p.image_magnitude_correlation,
+        p.peak_offset_voxels,
+        p.normal_cosine_median,
+        p.normal_cosine_p10
     );
 }
 

@@ -498,7 +498,10 @@ mod tests {
             }
         }
         for key in keys {
-            assert!(block.contains(&format!("\n{key} = ")) || block.starts_with(&format!("{key} = ")), "the README's defaults omit {key}");
+            assert!(
+                block.contains(&format!("\n{key} = ")) || block.starts_with(&format!("{key} = ")),
+                "the README's defaults omit {key}"
+            );
         }
         assert_eq!(
             serde_json::to_value(&parsed).unwrap(),

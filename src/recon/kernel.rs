@@ -43,7 +43,13 @@ impl Tile {
             self.z.push(c[2]);
         }
         let n = self.x.len();
-        for v in [&mut self.frac, &mut self.cos, &mut self.sin, &mut self.re, &mut self.im] {
+        for v in [
+            &mut self.frac,
+            &mut self.cos,
+            &mut self.sin,
+            &mut self.re,
+            &mut self.im,
+        ] {
             v.resize(n, 0.0);
         }
         self.bin.resize(n, 0);
@@ -88,7 +94,12 @@ impl MatchedFilter<'_> {
         let bins = self.profiles.bins;
         let row = &self.profiles.data[a * bins..(a + 1) * bins];
         let n = tile.len();
-        let (bin, frac, cos, sin) = (&tile.bin[..n], &tile.frac[..n], &tile.cos[..n], &tile.sin[..n]);
+        let (bin, frac, cos, sin) = (
+            &tile.bin[..n],
+            &tile.frac[..n],
+            &tile.cos[..n],
+            &tile.sin[..n],
+        );
         let (re, im) = (&mut tile.re[..n], &mut tile.im[..n]);
         for i in 0..n {
             let k = (bin[i] as usize).min(bins.saturating_sub(2));
@@ -104,8 +115,7 @@ impl MatchedFilter<'_> {
 
 fn geometry_pass(g: &Geometry, tile: &mut Tile) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    {
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU has just been found to support AVX2 and FMA, which is all that the
         // `target_feature` function requires.
         unsafe { geometry_pass_avx2(g, tile) };
@@ -163,15 +173,19 @@ pub fn sin_cos_turns_branchless(turns: f32) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use num_complex::Complex32;
     use crate::recon::image::{RangeProfiles, VoxelGrid, sin_cos_turns};
     use crate::sim::{Scene, simulate};
+    use num_complex::Complex32;
 
     #[test]
     fn branchless_sin_cos_equals_the_reference() {
         for i in -50_000..50_000 {
             let turns = i as f32 * 0.000_731 + 0.0123;
-            assert_eq!(sin_cos_turns_branchless(turns), sin_cos_turns(turns), "{turns}");
+            assert_eq!(
+                sin_cos_turns_branchless(turns),
+                sin_cos_turns(turns),
+                "{turns}"
+            );
         }
     }
 
@@ -200,7 +214,10 @@ mod tests {
             for (i, v) in centres.iter().enumerate() {
                 let r = filter.response(a, *v);
                 let t = Complex32::new(tile.re[i], tile.im[i]);
-                assert!((r - t).norm() <= 1e-5 * r.norm().max(1e-3), "antenna {a} voxel {i}: {r} vs {t}");
+                assert!(
+                    (r - t).norm() <= 1e-5 * r.norm().max(1e-3),
+                    "antenna {a} voxel {i}: {r} vs {t}"
+                );
             }
         }
     }

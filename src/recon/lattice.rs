@@ -169,7 +169,10 @@ const SAME_POSITION_M: f64 = 1e-6;
 fn distinct(values: &[f64]) -> usize {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
-    v.windows(2).filter(|w| w[1] - w[0] > SAME_POSITION_M).count() + usize::from(!v.is_empty())
+    v.windows(2)
+        .filter(|w| w[1] - w[0] > SAME_POSITION_M)
+        .count()
+        + usize::from(!v.is_empty())
 }
 
 /// The spacing of sorted coordinates: the median of the gaps over a quarter of the largest,
@@ -201,12 +204,7 @@ fn estimate_spacing(values: &[f64]) -> Option<f64> {
 /// (origin, spacing, node count). Sorted coordinates start a new node where they jump by more
 /// than half a spacing, and the index advances by the jump in spacings, rounded: each step is
 /// local, so an error in `spacing` does not build up across a long raster.
-fn fit_axis(
-    values: &[f64],
-    spacing: f64,
-    index: &mut [[usize; 2]],
-    a: usize,
-) -> (f64, f64, usize) {
+fn fit_axis(values: &[f64], spacing: f64, index: &mut [[usize; 2]], a: usize) -> (f64, f64, usize) {
     let mut order: Vec<usize> = (0..values.len()).collect();
     order.sort_by(|&p, &q| values[p].total_cmp(&values[q]));
     let mut ids = vec![0.0f64; values.len()];
@@ -267,8 +265,15 @@ mod tests {
         let (mut tx, mut rx, mut truth) = (vec![], vec![], vec![]);
         for r in 0..20 {
             for c in 0..30 {
-                let jitter = [0.05 * q * (rng.uniform() - 0.5), 0.05 * q * (rng.uniform() - 0.5)];
-                let t = [0.1 + c as f64 * q + jitter[0], -0.05 + r as f64 * q + jitter[1], 0.4];
+                let jitter = [
+                    0.05 * q * (rng.uniform() - 0.5),
+                    0.05 * q * (rng.uniform() - 0.5),
+                ];
+                let t = [
+                    0.1 + c as f64 * q + jitter[0],
+                    -0.05 + r as f64 * q + jitter[1],
+                    0.4,
+                ];
                 for k in 0..4 {
                     let o = -0.011 + 2.0 * q * k as f64;
                     tx.push(t);
@@ -279,7 +284,11 @@ mod tests {
             }
         }
         let lattice = detect(&capture(tx, rx), 0.1).unwrap();
-        assert!((lattice.spacing_m[0] - q).abs() < 1e-3 * q, "{:?}", lattice.spacing_m);
+        assert!(
+            (lattice.spacing_m[0] - q).abs() < 1e-3 * q,
+            "{:?}",
+            lattice.spacing_m
+        );
         assert!((lattice.spacing_m[1] - q).abs() < 1e-3 * q);
         assert_eq!(lattice.dims, [33, 20]);
         assert!(lattice.max_lateral_offset_m < 0.05 * q);

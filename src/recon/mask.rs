@@ -65,8 +65,12 @@ struct Power {
 impl Power {
     fn new(exponent: f64) -> Power {
         let twice = 2.0 * exponent;
-        let half_steps = (twice.fract() == 0.0 && (0.0..=32.0).contains(&twice)).then_some(twice as i32);
-        Power { exponent, half_steps }
+        let half_steps =
+            (twice.fract() == 0.0 && (0.0..=32.0).contains(&twice)).then_some(twice as i32);
+        Power {
+            exponent,
+            half_steps,
+        }
     }
 
     #[inline]
@@ -97,7 +101,11 @@ pub fn li_mask(
         .map(|&m| f64::from(m) / f64::from(peak))
         .collect();
     // r ↦ r^e keeps the order of the values, so one sort serves every exponent.
-    let mut sorted: Vec<f64> = relative.par_iter().copied().filter(|r| r.is_finite()).collect();
+    let mut sorted: Vec<f64> = relative
+        .par_iter()
+        .copied()
+        .filter(|r| r.is_finite())
+        .collect();
     sorted.par_sort_unstable_by(f64::total_cmp);
     let mut attempts = Vec::new();
     let mut best: Option<(f64, Vec<bool>, f64)> = None; // (box, mask, exponent)
@@ -198,7 +206,10 @@ mod tests {
             for i in 0..1000 {
                 let r = i as f64 / 999.0;
                 let (fast, exact) = (p.of(r), r.powf(e));
-                assert!((fast - exact).abs() <= 1e-14 * exact.max(1e-300), "{r}^{e}: {fast} vs {exact}");
+                assert!(
+                    (fast - exact).abs() <= 1e-14 * exact.max(1e-300),
+                    "{r}^{e}: {fast} vs {exact}"
+                );
             }
         }
     }

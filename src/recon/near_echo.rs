@@ -109,7 +109,7 @@ impl NearEchoCanceller {
             else {
                 break;
             };
-            if !(peak >= self.ratio * inside) || peak <= 0.0 {
+            if peak.is_nan() || peak < self.ratio * inside || peak <= 0.0 {
                 break;
             }
             let nu = self.refine(&residual, peak_bin);

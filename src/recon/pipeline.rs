@@ -16,13 +16,13 @@ use super::baselines::{backprojection_points, interferometric_points};
 use super::components::label_6;
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
-use super::lattice::{NotRaster, detect};
-use super::rma::{RmaReport, rma_image};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, optimise, weighted_constant,
 };
+use super::lattice::{NotRaster, detect};
 use super::mask::{MaskAttempt, MaskError, li_mask};
 use super::normals::{Candidates, normal_field};
+use super::rma::{RmaReport, rma_image};
 use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
 use super::trace::SampledField;
 use super::volume::{AutoReport, VolumeError, select};
@@ -201,9 +201,8 @@ pub fn image_volume(
         Imaging::Rma => Ok(detect(capture, config.raster_tolerance)?),
         Imaging::Auto => detect(capture, config.raster_tolerance).map_err(|e| e.to_string()),
     };
-    let want_votes = config.method == Method::Mmnorm
-        && config.unit_candidates
-        && config.spectral_normals;
+    let want_votes =
+        config.method == Method::Mmnorm && config.unit_candidates && config.spectral_normals;
     let (image, profiles, votes, imaging) = match lattice {
         Ok(lattice) => {
             let rma = rma_image(capture, &grid, &lattice, want_votes, quiet);

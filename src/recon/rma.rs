@@ -112,13 +112,20 @@ pub fn rma_image(
     let occupied = (b_hi - b_lo).ceil() as usize + 1;
     let decimation = (1..=t_len)
         .rev()
-        .find(|s| t_len % s == 0 && t_len / s >= OVERSAMPLING * occupied)
+        .find(|s| t_len.is_multiple_of(*s) && t_len / s >= OVERSAMPLING * occupied)
         .unwrap_or(1);
     let m_len = t_len / decimation;
     let centre_bin = (0.5 * (b_lo + b_hi)).round() as i64;
     let gate = |b: f64| {
-        let inner = (b_near.min(b_far) - GATE_MARGIN_BINS, b_near.max(b_far) + GATE_MARGIN_BINS);
-        let outside = if b < inner.0 { inner.0 - b } else { (b - inner.1).max(0.0) };
+        let inner = (
+            b_near.min(b_far) - GATE_MARGIN_BINS,
+            b_near.max(b_far) + GATE_MARGIN_BINS,
+        );
+        let outside = if b < inner.0 {
+            inner.0 - b
+        } else {
+            (b - inner.1).max(0.0)
+        };
         if outside >= GATE_EDGE_BINS {
             0.0
         } else {
@@ -161,39 +168,41 @@ pub fn rma_image(
         .collect();
     // Per node: the sum of its antennas' gated, decimated chirps (M samples).
     let mut node_chirps = vec![Complex32::new(0.0, 0.0); nodes * m_len];
-    node_chirps
-        .par_chunks_mut(m_len)
-        .enumerate()
-        .for_each_init(
-            || (vec![Complex32::new(0.0, 0.0); t_len], vec![Complex32::new(0.0, 0.0); m_len]),
-            |(full, short), (n, out)| {
-                for &a in &members[start[n]..start[n + 1]] {
-                    let (tx, rx) = (capture.tx_m[a], capture.rx_m[a]);
-                    let baseline2: f64 = (0..3).map(|k| (tx[k] - rx[k]).powi(2)).sum();
-                    let extra_m = capture.range_offset_m
-                        + baseline2 / (4.0 * reference_depth_m.max(1e-3))
-                        + 2.0 * lattice.offset_m[a][2];
-                    // exp(−j k_t extra) by a rotator in f64, re-seeded every 64 samples.
-                    let step = Complex64::from_polar(1.0, -dk_signed * extra_m);
-                    let mut w = Complex64::new(1.0, 0.0);
-                    for (t, (f, h)) in full.iter_mut().zip(capture.chirp(a)).enumerate() {
-                        if t % 64 == 0 {
-                            w = Complex64::from_polar(1.0, (-k_of(t) * extra_m).rem_euclid(TAU));
-                        }
-                        *f = h * Complex32::new(w.re as f32, w.im as f32);
-                        w *= step;
+    node_chirps.par_chunks_mut(m_len).enumerate().for_each_init(
+        || {
+            (
+                vec![Complex32::new(0.0, 0.0); t_len],
+                vec![Complex32::new(0.0, 0.0); m_len],
+            )
+        },
+        |(full, short), (n, out)| {
+            for &a in &members[start[n]..start[n + 1]] {
+                let (tx, rx) = (capture.tx_m[a], capture.rx_m[a]);
+                let baseline2: f64 = (0..3).map(|k| (tx[k] - rx[k]).powi(2)).sum();
+                let extra_m = capture.range_offset_m
+                    + baseline2 / (4.0 * reference_depth_m.max(1e-3))
+                    + 2.0 * lattice.offset_m[a][2];
+                // exp(−j k_t extra) by a rotator in f64, re-seeded every 64 samples.
+                let step = Complex64::from_polar(1.0, -dk_signed * extra_m);
+                let mut w = Complex64::new(1.0, 0.0);
+                for (t, (f, h)) in full.iter_mut().zip(capture.chirp(a)).enumerate() {
+                    if t % 64 == 0 {
+                        w = Complex64::from_polar(1.0, (-k_of(t) * extra_m).rem_euclid(TAU));
                     }
-                    range_fft.process(full);
-                    for &(bin, slot, weight) in &kept {
-                        short[slot] = full[bin] * weight;
-                    }
-                    decimated_ifft.process(short);
-                    for (o, s) in out.iter_mut().zip(short.iter()) {
-                        *o += s;
-                    }
+                    *f = h * Complex32::new(w.re as f32, w.im as f32);
+                    w *= step;
                 }
-            },
-        );
+                range_fft.process(full);
+                for &(bin, slot, weight) in &kept {
+                    short[slot] = full[bin] * weight;
+                }
+                decimated_ifft.process(short);
+                for (o, s) in out.iter_mut().zip(short.iter()) {
+                    *o += s;
+                }
+            }
+        },
+    );
 
     // 3. Aperture FFT of each decimated sample plane, stored kx-fastest per ky row, samples
     // innermost: spectrum[(ky·nfx + kx)·M + t'].
@@ -217,13 +226,16 @@ pub fn rma_image(
     let lateral = (0..2)
         .map(|k| {
             let lo = [lattice.origin_m[0], lattice.origin_m[1]][k];
-            (grid_hi[k] - lo).abs().max((lattice_hi[k] - grid_lo[k]).abs())
+            (grid_hi[k] - lo)
+                .abs()
+                .max((lattice_hi[k] - grid_lo[k]).abs())
         })
         .collect::<Vec<_>>();
     let shallowest = (lattice.z_m - grid_hi[2]).max(1e-3);
     let cos_max = (shallowest / (lateral[0].hypot(lateral[1]).hypot(shallowest))).max(0.05);
-    let depth_period_m = 0.5 * far + (GATE_MARGIN_BINS + GATE_EDGE_BINS) * c
-        / (2.0 * plan.frequency_step_hz.abs() * t_len as f64);
+    let depth_period_m = 0.5 * far
+        + (GATE_MARGIN_BINS + GATE_EDGE_BINS) * c
+            / (2.0 * plan.frequency_step_hz.abs() * t_len as f64);
     let dkz = TAU / depth_period_m;
     let kz_lo = 2.0 * k_min * cos_max;
     let kz_hi = 2.0 * k_max;
@@ -283,7 +295,12 @@ pub fn rma_image(
                 let kz = kz_lo + dkz * j as f64;
                 stolt.fill(kz, scratch);
                 for f in 0..fields {
-                    scratch.to_voxels(f, &czt_x, &czt_y, &mut out[f * plane_len..(f + 1) * plane_len]);
+                    scratch.transform_to_voxels(
+                        f,
+                        &czt_x,
+                        &czt_y,
+                        &mut out[f * plane_len..(f + 1) * plane_len],
+                    );
                 }
                 progress.inc(1);
             },
@@ -319,13 +336,10 @@ pub fn rma_image(
         }
     };
     let mut image = vec![Complex32::new(0.0, 0.0); grid.len()];
-    image
-        .par_chunks_mut(vz)
-        .enumerate()
-        .for_each_init(
-            || (Vec::new(), Vec::new()),
-            |(buf, s), (xy, out)| column(0, out, xy, buf, s),
-        );
+    image.par_chunks_mut(vz).enumerate().for_each_init(
+        || (Vec::new(), Vec::new()),
+        |(buf, s), (xy, out)| column(0, out, xy, buf, s),
+    );
     progress.inc(1);
     let votes = votes.then(|| {
         let mut votes = vec![[0.0f32; 3]; grid.len()];
@@ -387,31 +401,28 @@ fn aperture_spectrum(
     let fft_y = planner.plan_fft_forward(nfy);
     // Planes per sample: [t'][ky][kx].
     let mut planes = vec![Complex32::new(0.0, 0.0); m_len * nfx * nfy];
-    planes
-        .par_chunks_mut(nfx * nfy)
-        .enumerate()
-        .for_each_init(
-            || vec![Complex32::new(0.0, 0.0); nfy],
-            |column, (t, plane)| {
-                for j in 0..ny {
-                    for i in 0..nx {
-                        plane[j * nfx + i] = node_chirps[(i + nx * j) * m_len + t];
-                    }
+    planes.par_chunks_mut(nfx * nfy).enumerate().for_each_init(
+        || vec![Complex32::new(0.0, 0.0); nfy],
+        |column, (t, plane)| {
+            for j in 0..ny {
+                for i in 0..nx {
+                    plane[j * nfx + i] = node_chirps[(i + nx * j) * m_len + t];
                 }
-                for row in plane.chunks_mut(nfx).take(ny) {
-                    fft_x.process(row);
+            }
+            for row in plane.chunks_mut(nfx).take(ny) {
+                fft_x.process(row);
+            }
+            for i in 0..nfx {
+                for j in 0..nfy {
+                    column[j] = plane[j * nfx + i];
                 }
-                for i in 0..nfx {
-                    for j in 0..nfy {
-                        column[j] = plane[j * nfx + i];
-                    }
-                    fft_y.process(column);
-                    for j in 0..nfy {
-                        plane[j * nfx + i] = column[j];
-                    }
+                fft_y.process(column);
+                for j in 0..nfy {
+                    plane[j * nfx + i] = column[j];
                 }
-            },
-        );
+            }
+        },
+    );
     // Transpose to samples innermost.
     let mut spectrum = vec![Complex32::new(0.0, 0.0); m_len * nfx * nfy];
     spectrum
@@ -462,7 +473,7 @@ impl PlaneScratch {
     }
 
     /// Field `f` of the plane onto the voxel centres: `out[x·vy + y]`.
-    fn to_voxels(&mut self, f: usize, czt_x: &Czt, czt_y: &Czt, out: &mut [Complex32]) {
+    fn transform_to_voxels(&mut self, f: usize, czt_x: &Czt, czt_y: &Czt, out: &mut [Complex32]) {
         let [nfx, nfy] = self.nf;
         let (vx, vy) = (czt_x.outputs(), czt_y.outputs());
         // Along kx for every ky row: rows[ky·vx + x].
@@ -558,8 +569,8 @@ impl Stolt<'_> {
                 scratch.fields[0][slot] = narrow(value);
                 if scratch.fields.len() == 4 {
                     let unit = [kx / big_k, ky / big_k, kz / big_k];
-                    for q in 0..3 {
-                        scratch.fields[1 + q][slot] = narrow(value * unit[q]);
+                    for (field, u) in scratch.fields[1..].iter_mut().zip(unit) {
+                        field[slot] = narrow(value * u);
                     }
                 }
             }
@@ -585,7 +596,11 @@ mod tests {
     }
 
     fn correlation(a: &[f32], b: &[f32]) -> f64 {
-        let dot: f64 = a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum();
+        let dot: f64 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| f64::from(*x) * f64::from(*y))
+            .sum();
         let na: f64 = a.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
         let nb: f64 = b.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
         dot / (na * nb)
@@ -617,8 +632,12 @@ mod tests {
         let rma = rma_image(&capture, &grid, &lattice, false, true);
         let profiles = RangeProfiles::new(&capture, &grid, 32);
         let bp = backproject(&capture, &grid, &profiles, None);
-        let (ma, mb): (Vec<f32>, Vec<f32>) =
-            rma.image.iter().zip(&bp).map(|(a, b)| (a.norm(), b.norm())).unzip();
+        let (ma, mb): (Vec<f32>, Vec<f32>) = rma
+            .image
+            .iter()
+            .zip(&bp)
+            .map(|(a, b)| (a.norm(), b.norm()))
+            .unzip();
         let r = correlation(&ma, &mb);
         let argmax = |m: &[f32]| (0..m.len()).max_by(|&a, &b| m[a].total_cmp(&m[b])).unwrap();
         let (pa, pb) = (argmax(&ma), argmax(&mb));
@@ -627,7 +646,10 @@ mod tests {
         assert!(r >= 0.99, "{r}");
         let ijk = |p: usize| [p / (24 * 21), p / 21 % 24, p % 21];
         let (a, b) = (ijk(pa), ijk(pb));
-        assert!((0..3).all(|q| a[q].abs_diff(b[q]) <= 1), "{layout}: peak {a:?} vs {b:?}");
+        assert!(
+            (0..3).all(|q| a[q].abs_diff(b[q]) <= 1),
+            "{layout}: peak {a:?} vs {b:?}"
+        );
         assert!((peak_ratio - 1.0).abs() < 0.05, "{peak_ratio}");
     }
 
@@ -638,9 +660,15 @@ mod tests {
     fn spectral_normals_match_exact_votes() {
         use crate::recon::normals::{Candidates, normal_field};
         let cases = [
-            ("plate", "shape = \"plate\"\nsize_m = [0.03, 0.03]\nrotation_deg = [12.0, 5.0, 0.0]\n"),
+            (
+                "plate",
+                "shape = \"plate\"\nsize_m = [0.03, 0.03]\nrotation_deg = [12.0, 5.0, 0.0]\n",
+            ),
             ("sphere", "shape = \"sphere\"\nradius_m = 0.02\n"),
-            ("cylinder", "shape = \"cylinder\"\nradius_m = 0.015\nlength_m = 0.05\nrotation_deg = [0.0, 90.0, 0.0]\n"),
+            (
+                "cylinder",
+                "shape = \"cylinder\"\nradius_m = 0.015\nlength_m = 0.05\nrotation_deg = [0.0, 90.0, 0.0]\n",
+            ),
         ];
         for (name, object) in cases {
             let capture = scene_capture(
@@ -657,12 +685,24 @@ mod tests {
             let rma = rma_image(&capture, &grid, &lattice, true, true);
             let profiles = RangeProfiles::new(&capture, &grid, 32);
             let bp = backproject(&capture, &grid, &profiles, None);
-            let (ma, mb): (Vec<f32>, Vec<f32>) =
-                rma.image.iter().zip(&bp).map(|(a, b)| (a.norm(), b.norm())).unzip();
+            let (ma, mb): (Vec<f32>, Vec<f32>) = rma
+                .image
+                .iter()
+                .zip(&bp)
+                .map(|(a, b)| (a.norm(), b.norm()))
+                .unzip();
             let r = correlation(&ma, &mb);
             let peak = mb.iter().copied().fold(0.0f32, f32::max);
             let selected: Vec<bool> = mb.iter().map(|m| *m >= 0.3 * peak).collect();
-            let exact = normal_field(&capture, &grid, &profiles, &bp, &selected, Candidates::Unit, None);
+            let exact = normal_field(
+                &capture,
+                &grid,
+                &profiles,
+                &bp,
+                &selected,
+                Candidates::Unit,
+                None,
+            );
             let votes = rma.votes.as_ref().unwrap();
             let mut cosines: Vec<f64> = (0..grid.len())
                 .filter(|&v| selected[v] && exact[v][0].is_finite())
@@ -675,7 +715,10 @@ mod tests {
             cosines.sort_by(f64::total_cmp);
             let median = cosines[cosines.len() / 2];
             let p10 = cosines[cosines.len() / 10];
-            println!("{name}: |S| correlation {r:.4}, {} voxels, normal cosine median {median:.4}, p10 {p10:.4}", cosines.len());
+            println!(
+                "{name}: |S| correlation {r:.4}, {} voxels, normal cosine median {median:.4}, p10 {p10:.4}",
+                cosines.len()
+            );
             assert!(r >= 0.99, "{name}: {r}");
             assert!(median >= 0.99, "{name}: {median}");
         }

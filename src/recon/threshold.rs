@@ -118,7 +118,11 @@ pub fn li_threshold_sorted(sorted: &[f64], max_iterations: usize) -> Result<LiTh
     for &v in sorted {
         let x = v - first;
         let t = sum + x;
-        carry += if sum.abs() >= x.abs() { (sum - t) + x } else { (x - t) + sum };
+        carry += if sum.abs() >= x.abs() {
+            (sum - t) + x
+        } else {
+            (x - t) + sum
+        };
         sum = t;
         prefix.push(sum + carry);
     }

@@ -68,8 +68,8 @@ impl Czt {
         let forward = planner.plan_fft_forward(l);
         let inverse = planner.plan_fft_inverse(l);
         let mut kernel = vec![Complex32::new(0.0, 0.0); l];
-        for p in 0..m {
-            kernel[p] = narrow(chirp(p as f64, -1.0, 0.0));
+        for (p, k) in kernel.iter_mut().enumerate().take(m) {
+            *k = narrow(chirp(p as f64, -1.0, 0.0));
         }
         for p in 1..n {
             kernel[l - p] = narrow(chirp(p as f64, -1.0, 0.0));
@@ -102,7 +102,12 @@ impl Czt {
     }
 
     /// `output[m] = Σ_n input[n]·exp(j(k0 + nΔk)(x0 + mΔx))`. `scratch` is resized as needed.
-    pub fn apply(&self, input: &[Complex32], output: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+    pub fn apply(
+        &self,
+        input: &[Complex32],
+        output: &mut [Complex32],
+        scratch: &mut Vec<Complex32>,
+    ) {
         let l = self.kernel.len();
         scratch.clear();
         scratch.resize(l, Complex32::new(0.0, 0.0));
@@ -126,7 +131,7 @@ pub fn fft_friendly(n: usize) -> usize {
     loop {
         let mut r = candidate;
         for p in [2, 3, 5] {
-            while r % p == 0 {
+            while r.is_multiple_of(p) {
                 r /= p;
             }
         }
