@@ -35,7 +35,12 @@
 //! `Re(conj(S)·Σ_j I_j u_j)/|S|`, is three more transforms of the same spectrum weighted by
 //! `K/|K|`. It holds where stationary phase does: far from the aperture's edges in angle, and
 //! for the paper's unit candidate vectors only (the authors' displacement variant weights by
-//! distance and has no spectral form); `tests` compare it with exact votes.
+//! distance and has no spectral form); `tests` compare it with exact votes. Measured against
+//! exact votes (median cosine on the voxels above 30 % of the peak): 0.9998–1.0000 for a tilted
+//! plate, a sphere and a cylinder 25 cm under an 8×8 cm aperture; 0.9996 for a sphere 5 cm under
+//! it, where |S| itself correlates with backprojection at 0.988 only; 1.0000 for a sphere under
+//! the aperture's corner. No case tried needed the exact votes, which stay available
+//! (`spectral_normals = false`) and are used for non-raster apertures.
 
 use std::f64::consts::{PI, TAU};
 
@@ -586,9 +591,13 @@ mod tests {
     use crate::sim::{Scene, simulate};
 
     fn scene_capture(objects: &str, layout: &str, spacing: f64) -> Capture {
+        capture_at(objects, layout, spacing, 0.25)
+    }
+
+    fn capture_at(objects: &str, layout: &str, spacing: f64, z_m: f64) -> Capture {
         let text = format!(
             "[radar]\nprofile = \"{}/firmware_cfg/iwr1443_mmnorm.cfg\"\n\
-            [aperture]\nwidth_m = 0.08\nheight_m = 0.08\nspacing_m = {spacing}\nz_m = 0.25\nlayout = \"{layout}\"\nantenna_pattern = \"isotropic\"\n{objects}",
+            [aperture]\nwidth_m = 0.08\nheight_m = 0.08\nspacing_m = {spacing}\nz_m = {z_m}\nlayout = \"{layout}\"\nantenna_pattern = \"isotropic\"\n{objects}",
             env!("CARGO_MANIFEST_DIR")
         );
         let scene = Scene::parse(&text, std::path::Path::new("inline.toml")).unwrap();
@@ -653,12 +662,53 @@ mod tests {
         assert!((peak_ratio - 1.0).abs() < 0.05, "{peak_ratio}");
     }
 
+    /// |S| correlation with backprojection, and the median and 10th percentile of the cosine
+    /// between spectral and exact votes on the voxels above 30 % of the peak.
+    fn spectral_against_exact(capture: &Capture, grid: &VoxelGrid) -> (f64, f64, f64) {
+        use crate::recon::normals::{Candidates, normal_field};
+        let lattice = detect(capture, 0.1).unwrap();
+        let rma = rma_image(capture, grid, &lattice, true, true);
+        let profiles = RangeProfiles::new(capture, grid, 32);
+        let bp = backproject(capture, grid, &profiles, None);
+        let (ma, mb): (Vec<f32>, Vec<f32>) = rma
+            .image
+            .iter()
+            .zip(&bp)
+            .map(|(a, b)| (a.norm(), b.norm()))
+            .unzip();
+        let peak = mb.iter().copied().fold(0.0f32, f32::max);
+        let selected: Vec<bool> = mb.iter().map(|m| *m >= 0.3 * peak).collect();
+        let exact = normal_field(
+            capture,
+            grid,
+            &profiles,
+            &bp,
+            &selected,
+            Candidates::Unit,
+            None,
+        );
+        let votes = rma.votes.as_ref().unwrap();
+        let mut cosines: Vec<f64> = (0..grid.len())
+            .filter(|&v| selected[v] && exact[v][0].is_finite())
+            .map(|v| {
+                let w = votes[v];
+                let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                f64::from((0..3).map(|q| w[q] * exact[v][q]).sum::<f32>() / n)
+            })
+            .collect();
+        cosines.sort_by(f64::total_cmp);
+        (
+            correlation(&ma, &mb),
+            cosines[cosines.len() / 2],
+            cosines[cosines.len() / 10],
+        )
+    }
+
     /// Spectral votes against exact per-antenna votes (unit candidates) on the voxels above 30 %
     /// of the peak, and |S| against backprojection, for a tilted plate, a sphere and a cylinder
-    /// on its side.
+    /// on its side, 25 cm under the middle of an 8×8 cm aperture.
     #[test]
     fn spectral_normals_match_exact_votes() {
-        use crate::recon::normals::{Candidates, normal_field};
         let cases = [
             (
                 "plate",
@@ -670,57 +720,65 @@ mod tests {
                 "shape = \"cylinder\"\nradius_m = 0.015\nlength_m = 0.05\nrotation_deg = [0.0, 90.0, 0.0]\n",
             ),
         ];
+        let grid = VoxelGrid {
+            origin_m: [-0.025, -0.025, -0.005],
+            voxel_m: 0.0015,
+            dims: [34, 34, 22],
+        };
         for (name, object) in cases {
             let capture = scene_capture(
                 &format!("[[object]]\nposition_m = [0.0, 0.0, 0.0]\n{object}"),
                 "monostatic",
                 0.0019,
             );
-            let lattice = detect(&capture, 0.1).unwrap();
-            let grid = VoxelGrid {
-                origin_m: [-0.025, -0.025, -0.005],
-                voxel_m: 0.0015,
-                dims: [34, 34, 22],
-            };
-            let rma = rma_image(&capture, &grid, &lattice, true, true);
-            let profiles = RangeProfiles::new(&capture, &grid, 32);
-            let bp = backproject(&capture, &grid, &profiles, None);
-            let (ma, mb): (Vec<f32>, Vec<f32>) = rma
-                .image
-                .iter()
-                .zip(&bp)
-                .map(|(a, b)| (a.norm(), b.norm()))
-                .unzip();
-            let r = correlation(&ma, &mb);
-            let peak = mb.iter().copied().fold(0.0f32, f32::max);
-            let selected: Vec<bool> = mb.iter().map(|m| *m >= 0.3 * peak).collect();
-            let exact = normal_field(
-                &capture,
-                &grid,
-                &profiles,
-                &bp,
-                &selected,
-                Candidates::Unit,
-                None,
-            );
-            let votes = rma.votes.as_ref().unwrap();
-            let mut cosines: Vec<f64> = (0..grid.len())
-                .filter(|&v| selected[v] && exact[v][0].is_finite())
-                .map(|v| {
-                    let w = votes[v];
-                    let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-                    f64::from((0..3).map(|q| w[q] * exact[v][q]).sum::<f32>() / n)
-                })
-                .collect();
-            cosines.sort_by(f64::total_cmp);
-            let median = cosines[cosines.len() / 2];
-            let p10 = cosines[cosines.len() / 10];
+            let (r, median, p10) = spectral_against_exact(&capture, &grid);
             println!(
-                "{name}: |S| correlation {r:.4}, {} voxels, normal cosine median {median:.4}, p10 {p10:.4}",
-                cosines.len()
+                "{name}: |S| correlation {r:.4}, normal cosine median {median:.4}, p10 {p10:.4}"
             );
             assert!(r >= 0.99, "{name}: {r}");
             assert!(median >= 0.99, "{name}: {median}");
         }
+    }
+
+    /// Where stationary phase is strained: a sphere 5 cm under the aperture (the aperture spans
+    /// ±39° from it) and a sphere under the aperture's corner (it sees the aperture from one
+    /// side only). Measured: |S| correlation 0.988 and 0.999, normal cosine median 0.9996 and
+    /// 1.0000. Long: `cargo test --release -- --ignored spectral_normals_at`.
+    #[test]
+    #[ignore]
+    fn spectral_normals_at_low_height_and_at_the_edge() {
+        let sphere = "[[object]]\nshape = \"sphere\"\nradius_m = 0.02\n";
+        let low = capture_at(
+            &format!("{sphere}position_m = [0.0, 0.0, 0.0]\n"),
+            "monostatic",
+            0.0019,
+            0.07,
+        );
+        let grid = VoxelGrid {
+            origin_m: [-0.025, -0.025, -0.005],
+            voxel_m: 0.0015,
+            dims: [34, 34, 22],
+        };
+        let (r, median, p10) = spectral_against_exact(&low, &grid);
+        println!(
+            "5 cm under the aperture: |S| correlation {r:.4}, normal cosine median {median:.4}, p10 {p10:.4}"
+        );
+        assert!(median >= 0.99, "low: {median}");
+        assert!(r >= 0.98, "low: {r}");
+        let corner = scene_capture(
+            &format!("{sphere}position_m = [0.04, 0.04, 0.0]\n"),
+            "monostatic",
+            0.0019,
+        );
+        let grid = VoxelGrid {
+            origin_m: [0.015, 0.015, -0.005],
+            voxel_m: 0.0015,
+            dims: [34, 34, 22],
+        };
+        let (r, median, p10) = spectral_against_exact(&corner, &grid);
+        println!(
+            "under the corner: |S| correlation {r:.4}, normal cosine median {median:.4}, p10 {p10:.4}"
+        );
+        assert!(median >= 0.99, "corner: {median}");
     }
 }
