@@ -40,7 +40,7 @@ use serde::Serialize;
 use super::config::Optimisation;
 use super::image::box_round_trip_m;
 use super::near_echo::NearEchoCanceller;
-use super::trace::SampledField;
+use super::trace::{RaySamples, SampledField};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::progress::Progress;
@@ -302,40 +302,63 @@ pub fn simulate_candidates(
 
     // Simulated windowed spectra, [component][candidate][antenna].
     let subset = chosen.len();
-    let tasks: Vec<(usize, usize, usize)> = (0..fields.len())
-        .flat_map(|n| {
-            (0..candidates[n].len()).flat_map(move |c| (0..subset).map(move |j| (n, c, j)))
-        })
+    // One task per (component, antenna): its rays are marched once and every candidate level
+    // reads its crossings from the same samples.
+    let tasks: Vec<(usize, usize)> = (0..fields.len())
+        .flat_map(|n| (0..subset).map(move |j| (n, j)))
         .collect();
     let progress = Progress::new("isosurface", tasks.len() as u64, quiet);
     let centres = capture.centres_m();
-    let simulated: Vec<(Vec<Complex32>, usize)> = tasks
+    let per_task: Vec<Vec<(Vec<Complex32>, usize)>> = tasks
         .par_iter()
         .map_init(
-            || ToneAccumulator::new(&capture.plan, capture.range_offset_m),
-            |tones, &(n, c, j)| {
-                let a = chosen[j];
-                tones.clear();
-                let rays = trace_into(
-                    tones,
-                    &fields[n],
-                    candidates[n][c] as f32,
-                    centres[a],
-                    &capture.tx_m[a],
-                    &capture.rx_m[a],
-                    opts.ray_step_deg,
-                );
-                let mut chirp = vec![Complex32::new(0.0, 0.0); t];
-                tones.add_into(&mut chirp);
-                progress.inc(1);
-                let spectrum = canceller.spectrum(&chirp);
+            || {
                 (
-                    canceller.window(&spectrum, windows[j].first, windows[j].measured.len()),
-                    rays,
+                    ToneAccumulator::new(&capture.plan, capture.range_offset_m),
+                    Vec::new(),
                 )
+            },
+            |(tones, rays), &(n, j)| {
+                let a = chosen[j];
+                let count = march_rays(&fields[n], centres[a], opts.ray_step_deg, rays);
+                let out = candidates[n]
+                    .iter()
+                    .map(|&level| {
+                        tones.clear();
+                        add_hits(
+                            tones,
+                            rays,
+                            level as f32,
+                            &capture.tx_m[a],
+                            &capture.rx_m[a],
+                        );
+                        let mut chirp = vec![Complex32::new(0.0, 0.0); t];
+                        tones.add_into(&mut chirp);
+                        let spectrum = canceller.spectrum(&chirp);
+                        (
+                            canceller.window(
+                                &spectrum,
+                                windows[j].first,
+                                windows[j].measured.len(),
+                            ),
+                            count,
+                        )
+                    })
+                    .collect();
+                progress.inc(1);
+                out
             },
         )
         .collect();
+    // Reorder to [component][candidate][antenna].
+    let mut simulated: Vec<(Vec<Complex32>, usize)> = Vec::with_capacity(tasks.len() * 8);
+    for n in 0..fields.len() {
+        for c in 0..candidates[n].len() {
+            for j in 0..subset {
+                simulated.push(per_task[n * subset + j][c].clone());
+            }
+        }
+    }
     progress.finish();
     let rays_total: usize = simulated.iter().map(|s| s.1).sum();
     let rays_per_antenna_mean = rays_total as f64 / simulated.len().max(1) as f64;
@@ -494,17 +517,18 @@ fn l1_distance(a: &[f32], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(x, y)| f64::from((x - y).abs())).sum()
 }
 
+/// Ray march step, voxels. Sphere tracing stepped ¼–2 voxels per level; one march for every
+/// level steps half a voxel, and the secant between samples places the crossing.
+const MARCH_STEP_VOXELS: f32 = 0.5;
+
 /// Casts rays from `centre` over the angular box that covers `field` (uniform in the angles
-/// from nadir about x and y, `step_deg` apart) and adds each hit of `level` to `tones` with
-/// amplitude 1/d (Eq. 11). Returns the number of rays cast.
-fn trace_into(
-    tones: &mut ToneAccumulator,
+/// from nadir about x and y, `step_deg` apart) and marches each through it into `rays`.
+/// Returns the number of rays cast.
+fn march_rays(
     field: &SampledField,
-    level: f32,
     centre: [f64; 3],
-    tx: &[f64; 3],
-    rx: &[f64; 3],
     step_deg: f64,
+    rays: &mut Vec<RaySamples>,
 ) -> usize {
     let (lo, hi) = field.bounds();
     let origin = centre.map(|c| c as f32);
@@ -529,25 +553,40 @@ fn trace_into(
     let step = step_deg.to_radians();
     let count = |r: (f64, f64)| ((r.1 - r.0) / step).ceil().max(0.0) as usize + 1;
     let (na, nb) = (count(a_range), count(b_range));
-    let dist = |p: [f32; 3], q: &[f64; 3]| {
-        (0..3)
-            .map(|k| (f64::from(p[k]) - q[k]).powi(2))
-            .sum::<f64>()
-            .sqrt()
-    };
+    rays.resize_with(na * nb, RaySamples::default);
     for i in 0..na {
         let ta = (a_range.0 + step * i as f64).tan();
         for j in 0..nb {
             let tb = (b_range.0 + step * j as f64).tan();
             let norm = (ta * ta + tb * tb + 1.0).sqrt();
             let dir = [ta / norm, tb / norm, -1.0 / norm].map(|c| c as f32);
-            if let Some(hit) = field.first_crossing(origin, dir, level) {
-                let d = dist(hit, tx) + dist(hit, rx);
-                tones.add(Complex32::new((1.0 / d) as f32, 0.0), d);
-            }
+            field.march(origin, dir, MARCH_STEP_VOXELS, &mut rays[i * nb + j]);
         }
     }
     na * nb
+}
+
+/// Adds each ray's first crossing of `level` to `tones` with amplitude 1/d (Eq. 11), d the
+/// round trip TX → hit → RX.
+fn add_hits(
+    tones: &mut ToneAccumulator,
+    rays: &[RaySamples],
+    level: f32,
+    tx: &[f64; 3],
+    rx: &[f64; 3],
+) {
+    let dist = |p: [f32; 3], q: &[f64; 3]| {
+        (0..3)
+            .map(|k| (f64::from(p[k]) - q[k]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    for ray in rays {
+        if let Some(hit) = ray.first_crossing(level) {
+            let d = dist(hit, tx) + dist(hit, rx);
+            tones.add(Complex32::new((1.0 / d) as f32, 0.0), d);
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,13 +1,13 @@
 //! Ray casting against a level set of a sampled scalar field (the RSDF of one component).
 //!
 //! The field is defined on voxel centres and NaN elsewhere. It is sampled by trilinear
-//! interpolation, which is defined where all eight surrounding samples are. Rays march with
-//! sphere-tracing steps: where the field is defined and above the level by d, the step is 0.8·d,
-//! clamped to [¼, 2] voxels (the RSDF is only approximately a distance, so the step stays short
-//! enough never to jump over the thin shell). Through undefined space the step is one voxel.
+//! interpolation, which is defined where all eight surrounding samples are. A ray is marched once
+//! at a fixed step ([`SampledField::march`]) and its samples kept, so that the isosurface search
+//! reads the crossing of every candidate level from one march instead of tracing each level
+//! again (the earlier sphere tracer did, at ¼–2 voxel steps per level).
 //!
-//! A hit is a crossing of the level from above to below, refined by the secant between the two
-//! samples that bracket it. This differs from the authors' tracer (mmnorm-reference §5), which
+//! A hit is a crossing of the level from above to below between two adjacent defined samples,
+//! refined by the secant between them. This differs from the authors' tracer (mmnorm-reference §5), which
 //! counts any negative sample as a hit: a ray that enters a component from the side below the
 //! level would then "hit" the component's boundary, a wall that is not part of the surface and
 //! moves with the candidate level.
@@ -64,37 +64,63 @@ impl SampledField {
         let hi = [0, 1, 2].map(|a| (g.origin_m[a] + g.voxel_m * (g.dims[a] - 1) as f64) as f32);
         (lo, hi)
     }
+}
 
-    /// First point where the ray `origin + t·dir` (unit `dir`, t ≥ 0) crosses `level` from above.
-    pub fn first_crossing(&self, origin: [f32; 3], dir: [f32; 3], level: f32) -> Option<[f32; 3]> {
+/// The samples of a field along one ray at a fixed step, kept so that the first crossing of any
+/// level can be found without marching again ([`RaySamples::first_crossing`]).
+#[derive(Debug, Clone, Default)]
+pub struct RaySamples {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+    /// (t, value) of the defined samples in marching order; `breaks[i]` marks that an undefined
+    /// stretch lies between sample i − 1 and sample i.
+    samples: Vec<(f32, f32)>,
+    breaks: Vec<bool>,
+}
+
+impl SampledField {
+    /// Samples the field along `origin + t·dir` (unit `dir`) every `step_voxels` voxels across
+    /// the grid's box, reusing `out`'s storage.
+    pub fn march(&self, origin: [f32; 3], dir: [f32; 3], step_voxels: f32, out: &mut RaySamples) {
+        out.origin = origin;
+        out.dir = dir;
+        out.samples.clear();
+        out.breaks.clear();
         let (lo, hi) = self.bounds();
-        let (mut t, t_exit) = slab(origin, dir, lo, hi)?;
+        let Some((t0, t_exit)) = slab(origin, dir, lo, hi) else {
+            return;
+        };
         let voxel = self.grid.voxel_m as f32;
-        let at = |t: f32| [0, 1, 2].map(|a| origin[a] + t * dir[a]);
-        let mut previous: Option<(f32, f32)> = None;
-        // Nudge inside so the entry sample is within the grid.
-        t += 1e-4 * voxel;
+        let step = step_voxels * voxel;
+        let mut t = t0 + 1e-4 * voxel;
+        let mut gap = true;
         while t <= t_exit {
-            match self.sample(at(t)) {
+            match self.sample([0, 1, 2].map(|a| origin[a] + t * dir[a])) {
                 Some(v) => {
-                    let d = v - level;
-                    if let Some((tp, dp)) = previous
-                        && dp > 0.0
-                        && d <= 0.0
-                    {
-                        return Some(at(tp + (t - tp) * dp / (dp - d)));
-                    }
-                    previous = Some((t, d));
-                    t += if d > 0.0 {
-                        (0.8 * d).clamp(0.25 * voxel, 2.0 * voxel)
-                    } else {
-                        voxel
-                    };
+                    out.samples.push((t, v));
+                    out.breaks.push(gap);
+                    gap = false;
                 }
-                None => {
-                    previous = None;
-                    t += voxel;
-                }
+                None => gap = true,
+            }
+            t += step;
+        }
+    }
+}
+
+impl RaySamples {
+    /// First point where the samples cross `level` from above to below (between two adjacent
+    /// defined samples), refined by the secant.
+    pub fn first_crossing(&self, level: f32) -> Option<[f32; 3]> {
+        for i in 1..self.samples.len() {
+            if self.breaks[i] {
+                continue;
+            }
+            let ((tp, vp), (t, v)) = (self.samples[i - 1], self.samples[i]);
+            let (dp, d) = (vp - level, v - level);
+            if dp > 0.0 && d <= 0.0 {
+                let th = tp + (t - tp) * dp / (dp - d);
+                return Some([0, 1, 2].map(|a| self.origin[a] + th * self.dir[a]));
             }
         }
         None
@@ -136,6 +162,22 @@ mod tests {
         SampledField { grid, values }
     }
 
+    /// One march serves every level: each crossing lies on its level set.
+    #[test]
+    fn one_march_finds_every_level() {
+        let field = tilted_shell();
+        let d = [-0.05f32, 0.035, -0.29];
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let mut samples = RaySamples::default();
+        field.march([0.05, -0.03, 0.3], d.map(|c| c / n), 0.5, &mut samples);
+        for level in [-0.006f32, -0.002, 0.0, 0.003, 0.006] {
+            let hit = samples.first_crossing(level).unwrap();
+            let f = hit[2] - 0.02 + 0.1 * hit[0];
+            assert!((f - level).abs() < 2e-5, "level {level}: f = {f}");
+        }
+        assert!(samples.first_crossing(0.05).is_none());
+    }
+
     #[test]
     fn vertical_and_oblique_rays_hit_the_level_set() {
         let field = tilted_shell();
@@ -148,7 +190,9 @@ mod tests {
                     d.map(|c| c / n)
                 }),
             ] {
-                let hit = field.first_crossing(origin, dir, level).unwrap();
+                let mut samples = RaySamples::default();
+                field.march(origin, dir, 0.5, &mut samples);
+                let hit = samples.first_crossing(level).unwrap();
                 let f = hit[2] - 0.02 + 0.1 * hit[0];
                 assert!(
                     (f - level).abs() < 2e-5,
@@ -161,23 +205,20 @@ mod tests {
     #[test]
     fn rays_that_miss_or_enter_below_the_level_do_not_hit() {
         let field = tilted_shell();
-        assert!(
-            field
-                .first_crossing([0.5, 0.0, 0.3], [0.0, 0.0, -1.0], 0.0)
-                .is_none()
-        );
+        let hits = |origin: [f32; 3], dir: [f32; 3]| {
+            let mut samples = RaySamples::default();
+            field.march(origin, dir, 0.5, &mut samples);
+            samples.first_crossing(0.0)
+        };
+        assert!(hits([0.5, 0.0, 0.3], [0.0, 0.0, -1.0]).is_none());
         // Upward ray from below the shell: crosses from below to above, never from above.
-        assert!(
-            field
-                .first_crossing([0.0, 0.0, -0.1], [0.0, 0.0, 1.0], 0.0)
-                .is_none()
-        );
+        assert!(hits([0.0, 0.0, -0.1], [0.0, 0.0, 1.0]).is_none());
         // A horizontal ray inside the shell below the level (f = −4 mm at x = 0) exits along −x
         // where f decreases: no crossing from above.
-        assert!(
-            field
-                .first_crossing([0.0, 0.0, 0.016], [-1.0, 0.0, 0.0], 0.0)
-                .is_none()
-        );
+        assert!(hits([0.0, 0.0, 0.016], [-1.0, 0.0, 0.0]).is_none());
+        // The same ray along +x, where f increases through 0: no crossing from above either.
+        assert!(hits([0.0, 0.0, 0.016], [1.0, 0.0, 0.0]).is_none());
+        // Downward through the shell it does hit.
+        assert!(hits([0.0, 0.0, 0.3], [0.0, 0.0, -1.0]).is_some());
     }
 }
