@@ -350,12 +350,13 @@ pub fn simulate_candidates(
             },
         )
         .collect();
-    // Reorder to [component][candidate][antenna].
+    // Reorder to [component][candidate][antenna]: each task yields its candidates in order.
+    let mut per_task: Vec<_> = per_task.into_iter().map(Vec::into_iter).collect();
     let mut simulated: Vec<(Vec<Complex32>, usize)> = Vec::with_capacity(tasks.len() * 8);
-    for n in 0..fields.len() {
-        for c in 0..candidates[n].len() {
-            for j in 0..subset {
-                simulated.push(per_task[n * subset + j][c].clone());
+    for (n, levels) in candidates.iter().enumerate() {
+        for _ in levels {
+            for task in &mut per_task[n * subset..(n + 1) * subset] {
+                simulated.extend(task.next());
             }
         }
     }
