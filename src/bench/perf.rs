@@ -31,6 +31,7 @@ use crate::recon::config::{ReconConfig, VolumeSpec};
 use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::recon::normals::{Candidates, normal_field};
 use crate::recon::pipeline::ReconError;
+use crate::recon::rma::magnitude_correlation;
 use crate::recon::{image_volume, reconstruct_imaged};
 use crate::signal::{Rng, ToneAccumulator};
 use crate::sim::scene::DEFAULT_RANGE_OFFSET_M;
@@ -233,7 +234,7 @@ pub fn run_perf(scale: f64, reference_edge: usize, quiet: bool) -> Result<PerfRe
     };
     let (pa, pb) = (ijk(argmax(&fast_magnitude)), ijk(argmax(&sub_magnitude)));
     let parity = Parity {
-        image_magnitude_correlation: correlation(&fast_magnitude, &sub_magnitude),
+        image_magnitude_correlation: magnitude_correlation(&fast_magnitude, &sub_magnitude),
         peak_offset_voxels: (0..3).map(|q| pa[q].abs_diff(pb[q])).max().unwrap_or(0),
         normal_cosine_median: quantile(0.5),
         normal_cosine_p10: quantile(0.1),
@@ -380,17 +381,6 @@ pub fn markdown(r: &PerfReport, command: &str) -> String {
         )
     );
     md
-}
-
-fn correlation(a: &[f32], b: &[f32]) -> f64 {
-    let dot: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| f64::from(*x) * f64::from(*y))
-        .sum();
-    let na: f64 = a.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
-    let nb: f64 = b.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
-    dot / (na * nb)
 }
 
 /// The process's peak resident set (VmHWM), bytes; None off Linux.

@@ -85,6 +85,18 @@ pub struct RmaImage {
     pub report: RmaReport,
 }
 
+/// The normalised correlation Σab/√(Σa²·Σb²) of two magnitude images.
+pub fn magnitude_correlation(a: &[f32], b: &[f32]) -> f64 {
+    let dot: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| f64::from(*x) * f64::from(*y))
+        .sum();
+    let na: f64 = a.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
+    let nb: f64 = b.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
+    dot / (na * nb)
+}
+
 /// Decimation keeps at least this many samples per gated range bin.
 const OVERSAMPLING: usize = 4;
 /// Gate margin and raised-cosine edge, in range bins of the T-point FFT.
@@ -252,28 +264,20 @@ pub fn rma_image(
     let [vx, vy, vz] = grid.dims;
     let dkx = TAU / (nfx as f64 * dx);
     let dky = TAU / (nfy as f64 * dy);
-    let czt_x = Czt::new(
-        CztAxes {
-            n: nfx,
-            k0: -((nfx / 2) as f64) * dkx,
-            dk: dkx,
-            m: vx,
-            x0: grid.origin_m[0] - lattice.origin_m[0],
+    // From the shifted lateral wavenumbers to the voxel centres, relative to the lattice origin.
+    let mut lateral_czt = |axis: usize, nf: usize, dk: f64, m: usize| {
+        let axes = CztAxes {
+            n: nf,
+            k0: -((nf / 2) as f64) * dk,
+            dk,
+            m,
+            x0: grid.origin_m[axis] - lattice.origin_m[axis],
             dx: grid.voxel_m,
-        },
-        &mut planner,
-    );
-    let czt_y = Czt::new(
-        CztAxes {
-            n: nfy,
-            k0: -((nfy / 2) as f64) * dky,
-            dk: dky,
-            m: vy,
-            x0: grid.origin_m[1] - lattice.origin_m[1],
-            dx: grid.voxel_m,
-        },
-        &mut planner,
-    );
+        };
+        Czt::new(axes, &mut planner)
+    };
+    let czt_x = lateral_czt(0, nfx, dkx, vx);
+    let czt_y = lateral_czt(1, nfy, dky, vy);
     let dk = TAU * plan.frequency_step_hz.abs() / c;
     let weight_base = dkx * dky * dkz / (4.0 * PI * dk * capture.antennas().max(1) as f64);
     let plane_len = vx * vy;
@@ -604,16 +608,7 @@ mod tests {
         simulate(&scene, true).capture
     }
 
-    fn correlation(a: &[f32], b: &[f32]) -> f64 {
-        let dot: f64 = a
-            .iter()
-            .zip(b)
-            .map(|(x, y)| f64::from(*x) * f64::from(*y))
-            .sum();
-        let na: f64 = a.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
-        let nb: f64 = b.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
-        dot / (na * nb)
-    }
+    use super::magnitude_correlation as correlation;
 
     /// A point target, monostatic at λ/2 and with the IWR1443BOOST's four RX channels (11 mm
     /// TX–RX baselines, phase centres λ/4 apart) at λ/2: |S| correlates with backprojection

@@ -56,7 +56,25 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
     let min = image.par_iter().copied().reduce(|| f64::INFINITY, f64::min);
     image.par_iter_mut().for_each(|v| *v -= min);
     let tolerance = half_smallest_gap(&image);
-    let mut t_next = image.par_iter().sum::<f64>() / image.len() as f64;
+    let mean = image.par_iter().sum::<f64>() / image.len() as f64;
+    // The values are finite here, so `<=` is the exact complement of `>`.
+    let (t, iterations) = iterate(mean, tolerance, max_iterations, |t| split_means(&image, t))?;
+    Ok(LiThreshold {
+        threshold: t + min,
+        iterations,
+    })
+}
+
+/// Li's update t ← (μ_b − μ_f)/(ln μ_b − ln μ_f) from `start` until the step is at most
+/// `tolerance`; `means(t)` gives (μ_f, μ_b) of the shifted values above and at or below t.
+/// Returns the last t and the number of updates.
+fn iterate(
+    start: f64,
+    tolerance: f64,
+    max_iterations: usize,
+    means: impl Fn(f64) -> (f64, f64),
+) -> Result<(f64, usize), LiError> {
+    let mut t_next = start;
     let mut t_curr = -2.0 * tolerance;
     let mut iterations = 0;
     while (t_next - t_curr).abs() > tolerance {
@@ -64,18 +82,14 @@ pub fn li_threshold(values: &[f64], max_iterations: usize) -> Result<LiThreshold
             return Err(LiError::NotConverged(max_iterations));
         }
         t_curr = t_next;
-        // The values are finite here, so `<=` is the exact complement of `>`.
-        let (mean_fore, mean_back) = split_means(&image, t_curr);
+        let (mean_fore, mean_back) = means(t_curr);
         if mean_back == 0.0 {
             break;
         }
         t_next = (mean_back - mean_fore) / (mean_back.ln() - mean_fore.ln());
         iterations += 1;
     }
-    Ok(LiThreshold {
-        threshold: t_next + min,
-        iterations,
-    })
+    Ok((t_next, iterations))
 }
 
 /// Mean of the values; NaN for none (as numpy's mean of an empty selection).
@@ -128,25 +142,15 @@ pub fn li_threshold_sorted(sorted: &[f64], max_iterations: usize) -> Result<LiTh
     }
     let tolerance = half_smallest_sorted_gap(sorted);
     let total = prefix[n];
-    let mut t_next = total / n as f64;
-    let mut t_curr = -2.0 * tolerance;
-    let mut iterations = 0;
-    while (t_next - t_curr).abs() > tolerance {
-        if iterations == max_iterations {
-            return Err(LiError::NotConverged(max_iterations));
-        }
-        t_curr = t_next;
-        let split = sorted.partition_point(|&v| v - first <= t_curr);
-        let mean_back = prefix[split] / split as f64;
-        let mean_fore = (total - prefix[split]) / (n - split) as f64;
-        if mean_back == 0.0 {
-            break;
-        }
-        t_next = (mean_back - mean_fore) / (mean_back.ln() - mean_fore.ln());
-        iterations += 1;
-    }
+    let (t, iterations) = iterate(total / n as f64, tolerance, max_iterations, |t| {
+        let split = sorted.partition_point(|&v| v - first <= t);
+        (
+            (total - prefix[split]) / (n - split) as f64,
+            prefix[split] / split as f64,
+        )
+    })?;
     Ok(LiThreshold {
-        threshold: t_next + first,
+        threshold: t + first,
         iterations,
     })
 }
