@@ -657,6 +657,15 @@ mod tests {
         assert!((peak_ratio - 1.0).abs() < 0.05, "{peak_ratio}");
     }
 
+    /// 34×34×22 voxels of 1.5 mm from `origin_m`: about a 5 cm cube around an object.
+    fn cube_from(origin_m: [f64; 3]) -> VoxelGrid {
+        VoxelGrid {
+            origin_m,
+            voxel_m: 0.0015,
+            dims: [34, 34, 22],
+        }
+    }
+
     /// |S| correlation with backprojection, and the median and 10th percentile of the cosine
     /// between spectral and exact votes on the voxels above 30 % of the peak.
     fn spectral_against_exact(capture: &Capture, grid: &VoxelGrid) -> (f64, f64, f64) {
@@ -715,11 +724,7 @@ mod tests {
                 "shape = \"cylinder\"\nradius_m = 0.015\nlength_m = 0.05\nrotation_deg = [0.0, 90.0, 0.0]\n",
             ),
         ];
-        let grid = VoxelGrid {
-            origin_m: [-0.025, -0.025, -0.005],
-            voxel_m: 0.0015,
-            dims: [34, 34, 22],
-        };
+        let grid = cube_from([-0.025, -0.025, -0.005]);
         for (name, object) in cases {
             let capture = scene_capture(
                 &format!("[[object]]\nposition_m = [0.0, 0.0, 0.0]\n{object}"),
@@ -749,11 +754,7 @@ mod tests {
             0.0019,
             0.07,
         );
-        let grid = VoxelGrid {
-            origin_m: [-0.025, -0.025, -0.005],
-            voxel_m: 0.0015,
-            dims: [34, 34, 22],
-        };
+        let grid = cube_from([-0.025, -0.025, -0.005]);
         let (r, median, p10) = spectral_against_exact(&low, &grid);
         println!(
             "5 cm under the aperture: |S| correlation {r:.4}, normal cosine median {median:.4}, p10 {p10:.4}"
@@ -765,11 +766,7 @@ mod tests {
             "monostatic",
             0.0019,
         );
-        let grid = VoxelGrid {
-            origin_m: [0.015, 0.015, -0.005],
-            voxel_m: 0.0015,
-            dims: [34, 34, 22],
-        };
+        let grid = cube_from([0.015, 0.015, -0.005]);
         let (r, median, p10) = spectral_against_exact(&corner, &grid);
         println!(
             "under the corner: |S| correlation {r:.4}, normal cosine median {median:.4}, p10 {p10:.4}"
