@@ -26,7 +26,7 @@ use num_complex::Complex32;
 use serde::Serialize;
 
 use crate::capture::Capture;
-use crate::radar::{RadarProfile, iwr1443boost_rx_offset_m};
+use crate::radar::{RadarProfile, RxLayout};
 use crate::recon::config::{ReconConfig, VolumeSpec};
 use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::recon::normals::{Candidates, normal_field};
@@ -461,11 +461,7 @@ fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]), PerfError>
     let z_aperture = 0.55 * s;
     let count = |len: f64| (len / spacing + 1e-9).floor() as usize + 1;
     let (columns, rows) = (count(0.60 * s), count(0.45 * s));
-    let offsets: Vec<f64> = profile
-        .rx_channels
-        .iter()
-        .map(|&k| iwr1443boost_rx_offset_m(k, lambda0))
-        .collect();
+    let offsets = profile.rx_offsets_m(RxLayout::Iwr1443Boost);
     let (x0, y0) = (
         -0.5 * (columns - 1) as f64 * spacing,
         -0.5 * (rows - 1) as f64 * spacing,

@@ -246,24 +246,24 @@ impl<'a> MatchedFilter<'a> {
 }
 
 /// (sin, cos) of 2π·`turns` in f32: reduction to the nearest quarter turn, then Taylor
-/// polynomials on [−π/4, π/4] (errors below 3e-7), much faster than `f32::sin_cos`.
+/// polynomials on [−π/4, π/4] (errors below 3e-7), much faster than `f32::sin_cos`. The
+/// quadrant is chosen by arithmetic, not a `match`, so that loops around it vectorise
+/// (`recon::kernel`).
 #[inline(always)]
 pub fn sin_cos_turns(turns: f32) -> (f32, f32) {
     // Round to the nearest quarter turn without `f32::round` (a libm call on baseline x86-64).
     let x = turns * 4.0 + 0.5;
     let t = x as i32;
     let qi = t - i32::from((t as f32) > x);
-    let q = qi as f32;
-    let y = std::f32::consts::TAU * (turns - 0.25 * q);
+    let y = std::f32::consts::TAU * (turns - 0.25 * qi as f32);
     let y2 = y * y;
     let s = y * (1.0 + y2 * (-1.0 / 6.0 + y2 * (1.0 / 120.0 - y2 * (1.0 / 5040.0))));
     let c = 1.0 + y2 * (-0.5 + y2 * (1.0 / 24.0 + y2 * (-1.0 / 720.0 + y2 * (1.0 / 40320.0))));
-    match qi & 3 {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
-    }
+    // Quadrant q: (sin, cos) = (s, c), (c, −s), (−s, −c), (−c, s).
+    let swap = qi & 1 != 0;
+    let sign = 1.0 - 2.0 * ((qi >> 1) & 1) as f32;
+    let (a, b) = if swap { (c, -s) } else { (s, c) };
+    (a * sign, b * sign)
 }
 
 /// Voxels per cache tile of the antenna-outer loops (8 KB of complex sums).

@@ -4,7 +4,8 @@
 //! For one antenna and a tile of voxel centres held as separate x, y, z arrays it runs two
 //! passes, as torchbp's CPU backprojection does:
 //! 1. **Geometry** (vectorised): both distances, the fractional range bin, and the carrier's
-//!    (cos, sin) from the phase reduced in turns, by a branch-free polynomial. On x86-64 with
+//!    (cos, sin) from the phase reduced in turns, by the branch-free polynomial of
+//!    [`super::image::sin_cos_turns`]. On x86-64 with
 //!    AVX2 and FMA this pass is compiled for them and chosen at run time; eight voxels go
 //!    through each instruction.
 //! 2. **Lookup** (scalar): the two neighbouring bins of the cropped range profile, linearly
@@ -14,7 +15,7 @@
 //! profile row serves the whole tile. `tests::tile_kernel_matches_the_scalar_response` checks it
 //! against [`MatchedFilter::response`].
 
-use super::image::MatchedFilter;
+use super::image::{MatchedFilter, sin_cos_turns};
 
 /// Voxel centres of a tile (structure of arrays) and the kernel's per-voxel scratch.
 #[derive(Debug, Default, Clone)]
@@ -146,48 +147,18 @@ fn geometry_pass_body(g: &Geometry, tile: &mut Tile) {
         let k = (pos as u32).min(g.max_bin);
         bin[i] = k;
         frac[i] = pos - k as f32;
-        let (s, c) = sin_cos_turns_branchless(round_trip * g.turns_per_m);
+        let (s, c) = sin_cos_turns(round_trip * g.turns_per_m);
         sin[i] = s;
         cos[i] = c;
     }
 }
 
-/// (sin, cos) of 2π·`turns`, as [`super::image::sin_cos_turns`] but with the quadrant chosen
-/// by arithmetic instead of a `match`, so that the loop around it vectorises.
-#[inline(always)]
-pub fn sin_cos_turns_branchless(turns: f32) -> (f32, f32) {
-    let x = turns * 4.0 + 0.5;
-    let t = x as i32;
-    let qi = t - i32::from((t as f32) > x);
-    let y = std::f32::consts::TAU * (turns - 0.25 * qi as f32);
-    let y2 = y * y;
-    let s = y * (1.0 + y2 * (-1.0 / 6.0 + y2 * (1.0 / 120.0 - y2 * (1.0 / 5040.0))));
-    let c = 1.0 + y2 * (-0.5 + y2 * (1.0 / 24.0 + y2 * (-1.0 / 720.0 + y2 * (1.0 / 40320.0))));
-    // Quadrant q: (sin, cos) = (s, c), (c, −s), (−s, −c), (−c, s).
-    let swap = qi & 1 != 0;
-    let sign = 1.0 - 2.0 * ((qi >> 1) & 1) as f32;
-    let (a, b) = if swap { (c, -s) } else { (s, c) };
-    (a * sign, b * sign)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::recon::image::{RangeProfiles, VoxelGrid, sin_cos_turns};
+    use crate::recon::image::{RangeProfiles, VoxelGrid};
     use crate::sim::{Scene, simulate};
     use num_complex::Complex32;
-
-    #[test]
-    fn branchless_sin_cos_equals_the_reference() {
-        for i in -50_000..50_000 {
-            let turns = i as f32 * 0.000_731 + 0.0123;
-            assert_eq!(
-                sin_cos_turns_branchless(turns),
-                sin_cos_turns(turns),
-                "{turns}"
-            );
-        }
-    }
 
     #[test]
     fn tile_kernel_matches_the_scalar_response() {

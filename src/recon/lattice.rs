@@ -75,12 +75,7 @@ pub const MAX_NODES: usize = 5_000_000;
 /// `max_offset_fraction` of the spacing from its node along each axis (and vertically, of the
 /// larger spacing).
 pub fn detect(capture: &Capture, max_offset_fraction: f64) -> Result<Lattice, NotRaster> {
-    let centres: Vec<[f64; 3]> = capture
-        .tx_m
-        .iter()
-        .zip(&capture.rx_m)
-        .map(|(t, r)| [0, 1, 2].map(|k| 0.5 * (t[k] + r[k])))
-        .collect();
+    let centres = capture.centres_m();
     let mut axes = [(0.0, 0.0, 0usize); 2];
     let mut index = vec![[0usize; 2]; centres.len()];
     for (a, name) in [(0usize, 'x'), (1, 'y')] {

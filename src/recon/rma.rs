@@ -633,15 +633,7 @@ mod tests {
             voxel_m: 0.001,
             dims: [25, 24, 21],
         };
-        let rma = rma_image(&capture, &grid, &lattice, false, true);
-        let profiles = RangeProfiles::new(&capture, &grid, 32);
-        let bp = backproject(&capture, &grid, &profiles, None);
-        let (ma, mb): (Vec<f32>, Vec<f32>) = rma
-            .image
-            .iter()
-            .zip(&bp)
-            .map(|(a, b)| (a.norm(), b.norm()))
-            .unzip();
+        let Both { ma, mb, .. } = both(&capture, &grid, &lattice, false);
         let r = correlation(&ma, &mb);
         let argmax = |m: &[f32]| (0..m.len()).max_by(|&a, &b| m[a].total_cmp(&m[b])).unwrap();
         let (pa, pb) = (argmax(&ma), argmax(&mb));
@@ -655,6 +647,34 @@ mod tests {
             "{layout}: peak {a:?} vs {b:?}"
         );
         assert!((peak_ratio - 1.0).abs() < 0.05, "{peak_ratio}");
+    }
+
+    /// One grid imaged by range migration and by backprojection, with both magnitudes.
+    struct Both {
+        rma: RmaImage,
+        profiles: RangeProfiles,
+        bp: Vec<Complex32>,
+        ma: Vec<f32>,
+        mb: Vec<f32>,
+    }
+
+    fn both(capture: &Capture, grid: &VoxelGrid, lattice: &Lattice, votes: bool) -> Both {
+        let rma = rma_image(capture, grid, lattice, votes, true);
+        let profiles = RangeProfiles::new(capture, grid, 32);
+        let bp = backproject(capture, grid, &profiles, None);
+        let (ma, mb) = rma
+            .image
+            .iter()
+            .zip(&bp)
+            .map(|(a, b)| (a.norm(), b.norm()))
+            .unzip();
+        Both {
+            rma,
+            profiles,
+            bp,
+            ma,
+            mb,
+        }
     }
 
     /// 34×34×22 voxels of 1.5 mm from `origin_m`: about a 5 cm cube around an object.
@@ -671,15 +691,13 @@ mod tests {
     fn spectral_against_exact(capture: &Capture, grid: &VoxelGrid) -> (f64, f64, f64) {
         use crate::recon::normals::{Candidates, normal_field};
         let lattice = detect(capture, 0.1).unwrap();
-        let rma = rma_image(capture, grid, &lattice, true, true);
-        let profiles = RangeProfiles::new(capture, grid, 32);
-        let bp = backproject(capture, grid, &profiles, None);
-        let (ma, mb): (Vec<f32>, Vec<f32>) = rma
-            .image
-            .iter()
-            .zip(&bp)
-            .map(|(a, b)| (a.norm(), b.norm()))
-            .unzip();
+        let Both {
+            rma,
+            profiles,
+            bp,
+            ma,
+            mb,
+        } = both(capture, grid, &lattice, true);
         let peak = mb.iter().copied().fold(0.0f32, f32::max);
         let selected: Vec<bool> = mb.iter().map(|m| *m >= 0.3 * peak).collect();
         let exact = normal_field(
