@@ -24,6 +24,7 @@
 //! place that uses `anyhow`. Library modules return their own `thiserror` enums.
 
 pub mod bench;
+pub mod dca1000;
 pub mod capture;
 pub mod eval;
 pub mod geometry;

@@ -1,0 +1,185 @@
+//! The [`CaptureBoard`] trait and the recording half of the capture sequence (B4 steps 4–6).
+//!
+//! [`record_frames`] starts the board's recording, then starts the radar through a callback (so
+//! this module needs nothing from the radar's CLI), reassembles the stream into frames, hands
+//! them to a sink in order, and stops the recording. It notices a silent radar within
+//! `first_frame_margin` of the moment the first packet was due.
+
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+
+use super::command::{AsyncEvent, CodecError, FpgaConfig, FpgaVersion, PacketConfig};
+use super::packet::RAW_PAYLOAD_LEN;
+use super::reassembler::{Frame, Reassembler, StreamStats};
+
+/// Why a board operation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BoardError {
+    #[error("no reply to DCA1000 command {command} within {waited_ms} ms (check the host IP, SW2.5 = SW_CONFIG and the board's power)")]
+    Timeout { command: &'static str, waited_ms: u64 },
+    #[error("DCA1000 refused command {command} with status {status}")]
+    Rejected { command: &'static str, status: u16 },
+    #[error("bad reply to DCA1000 command {command}: {source}")]
+    BadReply {
+        command: &'static str,
+        #[source]
+        source: CodecError,
+    },
+    #[error("DCA1000 {what}: {source}")]
+    Io {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("the radar is silent: no data {waited_ms} ms after sensorStart; the first packet was due after {expected_ms} ms")]
+    RadarSilent { expected_ms: u64, waited_ms: u64 },
+    #[error("starting the radar failed: {0}")]
+    SensorStart(String),
+    #[error("writing frame {frame}: {source}")]
+    Sink {
+        frame: u64,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Receive-side counters the transport keeps besides the reassembler's.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ReceiveCounters {
+    /// Drops the kernel reports for the data socket (`/proc/net/udp`), where readable.
+    pub kernel_drops: Option<u64>,
+    /// Datagrams dropped because the bounded queue was full.
+    pub queue_drops: u64,
+    /// Datagrams from an address other than the board's.
+    pub foreign_datagrams: u64,
+    /// The receive buffer the kernel granted, bytes.
+    pub recv_buffer_bytes: usize,
+}
+
+/// A raw-ADC capture board.
+pub trait CaptureBoard {
+    /// `SYSTEM_CONNECT`, then `READ_FPGA_VERSION`.
+    fn connect(&mut self) -> Result<FpgaVersion, BoardError>;
+    /// `CONFIG_FPGA_GEN`, then `CONFIG_PACKET_DATA`.
+    fn configure(&mut self, fpga: FpgaConfig, packets: PacketConfig) -> Result<(), BoardError>;
+    fn start_record(&mut self) -> Result<(), BoardError>;
+    fn stop_record(&mut self) -> Result<(), BoardError>;
+    /// The next data datagram, or `None` after `timeout`.
+    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Bytes>, BoardError>;
+    /// Async status events received since the last call.
+    fn take_events(&mut self) -> Vec<AsyncEvent>;
+    fn counters(&self) -> ReceiveCounters;
+}
+
+/// Timing of one recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordPlan {
+    pub frames: u64,
+    pub frame_bytes: usize,
+    pub frame_period_s: f64,
+    /// How long past the first packet's due time a silent radar is tolerated.
+    pub first_frame_margin: Duration,
+    /// The FPGA's idle flush of a partial payload (2 s), waited for when data is missing.
+    pub stop_delay: Duration,
+}
+
+/// What a recording produced besides its frames.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct CaptureReport {
+    pub frames_expected: u64,
+    pub stream: StreamStats,
+    pub receive: ReceiveCounters,
+    /// Frames with a zero-filled gap.
+    pub flagged_frames: Vec<u64>,
+    pub events: Vec<AsyncEvent>,
+    /// From the end of `sensorStart` to the first data packet, milliseconds.
+    pub first_packet_ms: Option<f64>,
+    pub duration_s: f64,
+}
+
+/// Records `plan.frames` frames: `RECORD_START`, `start_sensor`, receive, `RECORD_STOP`.
+/// Every frame goes to `sink` in order, complete or flagged.
+pub fn record_frames(
+    board: &mut dyn CaptureBoard,
+    plan: &RecordPlan,
+    start_sensor: &mut dyn FnMut() -> Result<(), String>,
+    sink: &mut dyn FnMut(&Frame) -> std::io::Result<()>,
+) -> Result<CaptureReport, BoardError> {
+    let started = Instant::now();
+    let mut reassembler = Reassembler::new(plan.frame_bytes, Some(plan.frames));
+    let mut report = CaptureReport {
+        frames_expected: plan.frames,
+        ..CaptureReport::default()
+    };
+    board.start_record()?;
+    if let Err(e) = start_sensor() {
+        board.stop_record().ok();
+        return Err(BoardError::SensorStart(e));
+    }
+    let sensor_at = Instant::now();
+    let period = Duration::from_secs_f64(plan.frame_period_s.max(0.0));
+    let total_bytes = plan.frames * plan.frame_bytes as u64;
+    let frames_for_first_packet =
+        (RAW_PAYLOAD_LEN as u64).min(total_bytes).div_ceil(plan.frame_bytes.max(1) as u64);
+    let first_due = period.mul_f64(frames_for_first_packet as f64);
+    let first_deadline = sensor_at + first_due + plan.first_frame_margin;
+    let end_deadline =
+        sensor_at + period.mul_f64(plan.frames as f64) + plan.stop_delay + Duration::from_millis(500);
+    let mut emitted = 0u64;
+    while emitted < plan.frames {
+        let now = Instant::now();
+        let deadline = if report.first_packet_ms.is_none() {
+            first_deadline.min(end_deadline)
+        } else {
+            end_deadline
+        };
+        if now >= deadline {
+            if report.first_packet_ms.is_none() {
+                board.stop_record().ok();
+                return Err(BoardError::RadarSilent {
+                    expected_ms: first_due.as_millis() as u64,
+                    waited_ms: now.duration_since(sensor_at).as_millis() as u64,
+                });
+            }
+            break;
+        }
+        let wait = (deadline - now).min(Duration::from_millis(20));
+        if let Some(datagram) = board.recv_datagram(wait)? {
+            if report.first_packet_ms.is_none() {
+                report.first_packet_ms = Some(sensor_at.elapsed().as_secs_f64() * 1e3);
+            }
+            // A malformed datagram is counted by the reassembler and otherwise ignored.
+            reassembler.push(&datagram).ok();
+            emitted += hand_out(&mut reassembler, &mut report, sink)?;
+        }
+        report.events.extend(board.take_events());
+    }
+    board.stop_record()?;
+    report.stream = reassembler.finish();
+    hand_out(&mut reassembler, &mut report, sink)?;
+    report.events.extend(board.take_events());
+    report.receive = board.counters();
+    report.duration_s = started.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// Passes every ready frame to the sink; returns how many.
+fn hand_out(
+    reassembler: &mut Reassembler,
+    report: &mut CaptureReport,
+    sink: &mut dyn FnMut(&Frame) -> std::io::Result<()>,
+) -> Result<u64, BoardError> {
+    let mut count = 0;
+    while let Some(frame) = reassembler.pop_frame() {
+        if !frame.is_complete() {
+            report.flagged_frames.push(frame.index);
+        }
+        sink(&frame).map_err(|source| BoardError::Sink {
+            frame: frame.index,
+            source,
+        })?;
+        count += 1;
+    }
+    Ok(count)
+}
