@@ -28,6 +28,7 @@ pub mod dca1000;
 pub mod capture;
 pub mod eval;
 pub mod geometry;
+pub mod lab;
 pub mod plot;
 pub mod preview;
 pub mod progress;

@@ -109,6 +109,30 @@ enum Command {
         /// The .cfg file.
         cfg: PathBuf,
     },
+    /// Record from the devices without the robot.
+    Capture {
+        #[command(subcommand)]
+        which: CaptureCommand,
+    },
+    /// Run simulated devices on loopback addresses and a PTY.
+    Sim {
+        #[command(subcommand)]
+        which: SimCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum CaptureCommand {
+    /// Configure the radar and the DCA1000, record N frames, and write adc_data.bin (TI's
+    /// layout, bit-exact) and report.json (packets, loss, reordering, flagged frames).
+    Raw(cli::capture::RawArgs),
+}
+
+#[derive(Subcommand)]
+enum SimCommand {
+    /// The IWR1443 CLI simulator on a PTY and the DCA1000 simulator on loopback UDP, streaming
+    /// the frames of the config's [sim] scene or capture directory, until Ctrl-C.
+    Radar(cli::capture::SimRadarArgs),
 }
 
 #[derive(Subcommand)]
@@ -180,6 +204,12 @@ fn main() -> std::process::ExitCode {
             which: BenchCommand::Perf(a),
         } => cli::bench::perf(a, args.quiet),
         Command::Profile { cfg } => cli::profile::run(&cfg),
+        Command::Capture {
+            which: CaptureCommand::Raw(a),
+        } => cli::capture::raw(a, args.quiet),
+        Command::Sim {
+            which: SimCommand::Radar(a),
+        } => cli::capture::sim_radar(a, args.quiet),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

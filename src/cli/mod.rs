@@ -2,6 +2,7 @@
 //! library and report; errors become `anyhow` with context.
 
 pub mod bench;
+pub mod capture;
 pub mod eval;
 pub mod inspect;
 pub mod profile;

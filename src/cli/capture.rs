@@ -1,0 +1,123 @@
+//! `mmnormd capture raw` and `mmnormd sim radar`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context as _, Result};
+use mmnormd::dca1000::udp::UdpBoard;
+use mmnormd::lab::LabConfig;
+use mmnormd::lab::raw::{RawCapture, capture_raw};
+use mmnormd::lab::simchain::{SimChain, load_source};
+use mmnormd::radar::control::open_serial;
+use mmnormd::radar::{CliRadar, RadarControl, RadarProfile};
+
+#[derive(clap::Args)]
+pub struct RawArgs {
+    /// Lab config (the [radar] and [dca1000] sections are used).
+    #[arg(long)]
+    config: PathBuf,
+    /// Frames to record.
+    #[arg(long)]
+    frames: u64,
+    /// Output directory (adc_data.bin, report.json).
+    #[arg(long)]
+    out: PathBuf,
+    /// Leave the radar alone and drive the DCA1000 only.
+    #[arg(long)]
+    no_radar: bool,
+}
+
+pub fn raw(args: RawArgs, quiet: bool) -> Result<()> {
+    let lab = LabConfig::load(&args.config)?;
+    let profile = RadarProfile::from_cfg_file(&lab.radar.profile)?;
+    anyhow::ensure!(args.frames > 0, "--frames 0: record at least one frame");
+    let mut board = UdpBoard::open(&lab.dca1000)?;
+    let mut radar = if args.no_radar {
+        None
+    } else {
+        let port = open_serial(&lab.radar)?;
+        Some(CliRadar::new(port, lab.radar.session_config()))
+    };
+    let job = RawCapture {
+        lab: &lab,
+        profile: &profile,
+        frames: args.frames,
+        out_dir: &args.out,
+        quiet,
+    };
+    let report = capture_raw(
+        &mut board,
+        radar.as_mut().map(|r| r as &mut dyn RadarControl),
+        &job,
+    )
+    .with_context(|| format!("capture failed; see {}", args.out.join("report.json").display()))?;
+    let s = &report.capture.stream;
+    println!(
+        "{} frames of {} B in {:.2} s: {} packets, {} bytes, {} lost, {} duplicates, {} reordered, {} late, {} flagged frames, kernel drops {}",
+        s.frames,
+        report.frame_bytes,
+        report.capture.duration_s,
+        s.packets,
+        s.bytes,
+        s.lost,
+        s.duplicates,
+        s.reordered,
+        s.late,
+        report.capture.flagged_frames.len(),
+        report
+            .capture
+            .receive
+            .kernel_drops
+            .map_or("n/a".to_string(), |d| d.to_string())
+    );
+    println!("wrote {}/adc_data.bin and report.json", args.out.display());
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct SimRadarArgs {
+    /// Lab config: [dca1000] addresses (loopback only) and the [sim] section.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+pub fn sim_radar(args: SimRadarArgs, quiet: bool) -> Result<()> {
+    let lab = LabConfig::load(&args.config)?;
+    let profile = RadarProfile::from_cfg_file(&lab.radar.profile)?;
+    let (source, scale) = load_source(&lab, &profile, quiet)?;
+    let frames = source.frames();
+    let chain = SimChain::start(&lab, Arc::new(source), None)?;
+    println!(
+        "radar CLI on {} (linked from {}); DCA1000 on {} sending to {}:{}; {} frames ready ({:.1} ADC counts per unit); Ctrl-C stops",
+        chain.radar.path(),
+        lab.sim.radar_link.display(),
+        chain.board.config_addr(),
+        lab.dca1000.host_ip,
+        lab.dca1000.host_data_port,
+        frames,
+        scale
+    );
+    wait_for_stop_signal()?;
+    let (board, cli) = chain.stats();
+    println!(
+        "stopped: {} commands, {} recordings, {} packets sent; radar {} lines, {} sensorStart",
+        board.commands, board.recordings, board.packets_sent, cli.lines, cli.sensor_starts
+    );
+    Ok(())
+}
+
+/// Blocks until SIGINT or SIGTERM.
+fn wait_for_stop_signal() -> Result<()> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the signal runtime")?;
+    runtime.block_on(async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+            .context("installing the SIGTERM handler")?;
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => r.context("waiting for Ctrl-C"),
+            _ = term.recv() => Ok(()),
+        }
+    })
+}
