@@ -63,7 +63,7 @@ pub fn raw(args: RawArgs, quiet: bool) -> Result<()> {
         s.duplicates,
         s.reordered,
         s.late,
-        report.capture.flagged_frames.len(),
+        report.capture.flagged_frame_indices.len(),
         report
             .capture
             .receive

@@ -88,10 +88,12 @@ pub struct RecordPlan {
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct CaptureReport {
     pub frames_expected: u64,
+    #[serde(flatten)]
     pub stream: StreamStats,
+    #[serde(flatten)]
     pub receive: ReceiveCounters,
     /// Frames with a zero-filled gap.
-    pub flagged_frames: Vec<u64>,
+    pub flagged_frame_indices: Vec<u64>,
     pub events: Vec<AsyncEvent>,
     /// From the end of `sensorStart` to the first data packet, milliseconds.
     pub first_packet_ms: Option<f64>,
@@ -173,7 +175,7 @@ fn hand_out(
     let mut count = 0;
     while let Some(frame) = reassembler.pop_frame() {
         if !frame.is_complete() {
-            report.flagged_frames.push(frame.index);
+            report.flagged_frame_indices.push(frame.index);
         }
         sink(&frame).map_err(|source| BoardError::Sink {
             frame: frame.index,

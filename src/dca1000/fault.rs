@@ -53,6 +53,8 @@ impl FaultConfig {
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
 pub struct InjectedFaults {
     pub dropped: u64,
+    /// Sequence numbers of the dropped datagrams, in stream order.
+    pub dropped_sequences: Vec<u32>,
     pub duplicated: u64,
     /// Datagrams emitted after one with a higher sequence number.
     pub reordered: u64,
@@ -99,6 +101,11 @@ impl FaultInjector {
         let hold = self.held.is_empty() && self.roll(self.config.reorder_probability);
         if lose {
             self.truth.dropped += 1;
+            if let Some(b) = datagram.get(..4) {
+                self.truth
+                    .dropped_sequences
+                    .push(u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+            }
         } else if hold {
             let depth = 1 + (self.rng.next_u64() % self.config.reorder_depth.max(1) as u64);
             self.held.push((index + depth, datagram, duplicate));

@@ -146,7 +146,8 @@ pub struct BoardCore {
     source: Arc<AdcStream>,
     fpga: Option<FpgaConfig>,
     recording_since: Option<Instant>,
-    no_lvds_reported: bool,
+    /// Set once a sensor start came during this recording, or `NO_LVDS_DATA` was reported.
+    lvds_seen_or_reported: bool,
     streaming: Option<StreamState>,
     injector: FaultInjector,
     outbox: VecDeque<Output>,
@@ -199,7 +200,7 @@ impl BoardCore {
             source,
             fpga: None,
             recording_since: None,
-            no_lvds_reported: false,
+            lvds_seen_or_reported: false,
             streaming: None,
             outbox: VecDeque::new(),
             stats: SimStats::default(),
@@ -244,7 +245,7 @@ impl BoardCore {
             Command::ConfigPacketData(_) | Command::ConfigEeprom(_) => 0,
             Command::RecordStart if self.fpga.is_some() => {
                 self.recording_since = Some(now);
-                self.no_lvds_reported = false;
+                self.lvds_seen_or_reported = false;
                 self.streaming = None;
                 self.injector = FaultInjector::new(self.config.faults.clone());
                 self.stats.recordings += 1;
@@ -283,6 +284,7 @@ impl BoardCore {
             plan.frames.min(available)
         };
         let scale = self.config.time_scale.max(1e-6);
+        self.lvds_seen_or_reported = true;
         self.streaming = Some(StreamState {
             t0: now,
             frame_period: Duration::from_secs_f64(plan.frame_period_s.max(0.0) / scale),
@@ -325,13 +327,13 @@ impl BoardCore {
     pub fn poll(&mut self, now: Instant) {
         if let (Some(since), Some(fpga)) = (self.recording_since, self.fpga)
             && self.streaming.is_none()
-            && !self.no_lvds_reported
+            && !self.lvds_seen_or_reported
         {
             let timer = Duration::from_secs_f64(
                 f64::from(fpga.timer_s) / self.config.time_scale.max(1e-6),
             );
             if now >= since + timer {
-                self.no_lvds_reported = true;
+                self.lvds_seen_or_reported = true;
                 self.push_status(&[AsyncEvent::NoLvdsData]);
             }
         }
@@ -377,7 +379,7 @@ impl BoardCore {
             return (s.next_packet < s.packets()).then(|| s.due(s.next_packet));
         }
         match (self.recording_since, self.fpga) {
-            (Some(since), Some(fpga)) if !self.no_lvds_reported => Some(
+            (Some(since), Some(fpga)) if !self.lvds_seen_or_reported => Some(
                 since
                     + Duration::from_secs_f64(
                         f64::from(fpga.timer_s) / self.config.time_scale.max(1e-6),
@@ -542,7 +544,7 @@ fn run(
         let wait = core
             .next_deadline()
             .map_or(Duration::from_millis(20), |d| d.saturating_duration_since(now))
-            .clamp(Duration::from_micros(200), Duration::from_millis(20));
+            .clamp(Duration::from_micros(200), Duration::from_millis(2));
         control.set_read_timeout(Some(wait)).ok();
         if let Ok((n, from)) = control.recv_from(&mut buf) {
             host_control = Some(from);

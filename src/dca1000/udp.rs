@@ -69,7 +69,7 @@ impl Default for Dca1000Config {
             packet_delay_us: 25.0,
             fpga: FpgaConfig::default(),
             iq_order: IqOrder::IFirst,
-            first_frame_margin_ms: 50,
+            first_frame_margin_ms: 40,
             stop_delay_s: 2.0,
         }
     }
@@ -208,6 +208,12 @@ impl UdpBoard {
             stop,
             thread: Some(thread),
         })
+    }
+
+    /// Points commands at another board address than the config's (a simulator bound to an
+    /// ephemeral port).
+    pub fn set_board_config_addr(&mut self, addr: SocketAddr) {
+        self.board_control = addr;
     }
 
     /// The bound data address (where the board must send).
