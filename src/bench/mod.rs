@@ -7,13 +7,15 @@
 //!   several cases at a time within a memory budget, resumable;
 //! - [`report`]: `results.csv`, the CDF plots and `report.md` beside the paper's figures;
 //! - [`scene_png`]: one picture per case (Fig. 10 style);
-//! - [`perf`]: `mmnormd bench perf`, the full-scale speed benchmark.
+//! - [`perf`]: `mmnormd bench perf`, the full-scale speed benchmark;
+//! - [`stream`]: `mmnormd bench stream`, the DCA1000 receive path's throughput.
 
 pub mod cache;
 pub mod perf;
 pub mod report;
 pub mod run;
 pub mod scene_png;
+pub mod stream;
 pub mod suite;
 
 use std::path::{Path, PathBuf};

@@ -53,6 +53,42 @@ pub struct PerfArgs {
     markdown: Option<PathBuf>,
 }
 
+#[derive(clap::Args)]
+pub struct StreamArgs {
+    /// Frames in the recording (4000 is one 12 s raster row).
+    #[arg(long, default_value_t = 4000)]
+    frames: usize,
+    /// Timed repeats; the medians are reported.
+    #[arg(long, default_value_t = 7)]
+    repeats: usize,
+    /// Print each run as one JSON object per line as well.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn stream(a: StreamArgs) -> Result<()> {
+    anyhow::ensure!(a.frames > 0, "--frames 0: give at least one frame");
+    for faults in [true, false] {
+        let r = mmnormd::bench::stream::run_stream_bench(a.frames, a.repeats, faults);
+        println!(
+            "{} frames of {} B{}: reassembly {:.0} MB/s, decoding {:.0} MB/s, both {:.0} MB/s = {:.0}× the real {:.2} MB/s (medians of {})",
+            r.frames,
+            r.frame_bytes,
+            if faults { ", 2 % reordered + 1 % duplicated" } else { "" },
+            r.reassemble_mb_per_s,
+            r.decode_mb_per_s,
+            r.combined_mb_per_s,
+            r.headroom,
+            r.real_rate_mb_per_s,
+            r.repeats
+        );
+        if a.json {
+            println!("{}", serde_json::to_string(&r)?);
+        }
+    }
+    Ok(())
+}
+
 pub fn perf(a: PerfArgs, quiet: bool) -> Result<()> {
     let report = run_perf(a.scale, a.reference_edge, quiet)?;
     print_perf(&report);
