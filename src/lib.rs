@@ -24,8 +24,8 @@
 //! place that uses `anyhow`. Library modules return their own `thiserror` enums.
 
 pub mod bench;
-pub mod dca1000;
 pub mod capture;
+pub mod dca1000;
 pub mod eval;
 pub mod geometry;
 pub mod lab;

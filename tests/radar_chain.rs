@@ -79,7 +79,11 @@ fn capture(b: &mut Bench, frames: u64, out: &Path) -> Result<RawReport, RawError
         out_dir: out,
         quiet: true,
     };
-    capture_raw(&mut b.board, Some(&mut radar as &mut dyn RadarControl), &job)
+    capture_raw(
+        &mut b.board,
+        Some(&mut radar as &mut dyn RadarControl),
+        &job,
+    )
 }
 
 #[test]
@@ -102,7 +106,10 @@ fn a_raster_row_is_configured_captured_and_recovered_bit_exactly() {
         report.capture.first_packet_ms.unwrap_or(f64::NAN),
         report.radar_commands.len()
     );
-    assert_eq!(adc, source.bytes, "adc_data.bin is the simulated stream, bit-exact");
+    assert_eq!(
+        adc, source.bytes,
+        "adc_data.bin is the simulated stream, bit-exact"
+    );
     assert_eq!((s.lost, s.duplicates, s.reordered), (0, 0, 0));
     assert!(report.capture.flagged_frame_indices.is_empty());
     assert!(report.radar_commands.iter().all(|c| c.attempts == 1));
@@ -113,7 +120,16 @@ fn a_raster_row_is_configured_captured_and_recovered_bit_exactly() {
     assert!(first.iter().any(|c| c.re != 0 || c.im != 0));
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
-    for key in ["packets", "bytes", "lost", "duplicates", "reordered", "late", "flagged_frames", "kernel_drops"] {
+    for key in [
+        "packets",
+        "bytes",
+        "lost",
+        "duplicates",
+        "reordered",
+        "late",
+        "flagged_frames",
+        "kernel_drops",
+    ] {
         assert!(json.get(key).is_some(), "report.json lacks {key}");
     }
     let (board, cli) = b.chain.stats();
@@ -151,9 +167,19 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
         outcomes.iter().map(|o| o.attempts).max().unwrap_or(0),
         started.elapsed().as_secs_f64()
     );
-    assert!(cli.dropped_replies >= 1 && cli.garbled_echoes >= 1, "the faults fired");
-    assert_eq!(outcomes.len(), mmnormd::radar::control::configure_commands(&profile).len());
-    assert!(outcomes.iter().all(|o| o.attempts <= 4 && o.accepted == Accepted::Done));
+    assert!(
+        cli.dropped_replies >= 1 && cli.garbled_echoes >= 1,
+        "the faults fired"
+    );
+    assert_eq!(
+        outcomes.len(),
+        mmnormd::radar::control::configure_commands(&profile).len()
+    );
+    assert!(
+        outcomes
+            .iter()
+            .all(|o| o.attempts <= 4 && o.accepted == Accepted::Done)
+    );
     assert_eq!(cli.sensor_starts, 1);
 }
 
@@ -161,7 +187,8 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
 fn a_radar_silent_after_sensor_start_is_detected_within_50_ms() {
     let mut config = lab();
     config.sim.cli_faults.silent_after_start = true;
-    config.dca1000.first_frame_margin_ms = mmnormd::dca1000::udp::Dca1000Config::default().first_frame_margin_ms;
+    config.dca1000.first_frame_margin_ms =
+        mmnormd::dca1000::udp::Dca1000Config::default().first_frame_margin_ms;
     let mut b = bench(config);
     let out = tempfile::tempdir().unwrap();
     let err = capture(&mut b, 100, out.path()).unwrap_err();

@@ -74,7 +74,11 @@ pub fn stream(a: StreamArgs) -> Result<()> {
             "{} frames of {} B{}: reassembly {:.0} MB/s, decoding {:.0} MB/s, both {:.0} MB/s = {:.0}× the real {:.2} MB/s (medians of {})",
             r.frames,
             r.frame_bytes,
-            if faults { ", 2 % reordered + 1 % duplicated" } else { "" },
+            if faults {
+                ", 2 % reordered + 1 % duplicated"
+            } else {
+                ""
+            },
             r.reassemble_mb_per_s,
             r.decode_mb_per_s,
             r.combined_mb_per_s,

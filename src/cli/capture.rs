@@ -50,7 +50,12 @@ pub fn raw(args: RawArgs, quiet: bool) -> Result<()> {
         radar.as_mut().map(|r| r as &mut dyn RadarControl),
         &job,
     )
-    .with_context(|| format!("capture failed; see {}", args.out.join("report.json").display()))?;
+    .with_context(|| {
+        format!(
+            "capture failed; see {}",
+            args.out.join("report.json").display()
+        )
+    })?;
     let s = &report.capture.stream;
     println!(
         "{} frames of {} B in {:.2} s: {} packets, {} bytes, {} lost, {} duplicates, {} reordered, {} late, {} flagged frames, kernel drops {}",

@@ -16,8 +16,13 @@ use super::reassembler::{Frame, Reassembler, StreamStats};
 /// Why a board operation failed.
 #[derive(Debug, thiserror::Error)]
 pub enum BoardError {
-    #[error("no reply to DCA1000 command {command} within {waited_ms} ms (check the host IP, SW2.5 = SW_CONFIG and the board's power)")]
-    Timeout { command: &'static str, waited_ms: u64 },
+    #[error(
+        "no reply to DCA1000 command {command} within {waited_ms} ms (check the host IP, SW2.5 = SW_CONFIG and the board's power)"
+    )]
+    Timeout {
+        command: &'static str,
+        waited_ms: u64,
+    },
     #[error("DCA1000 refused command {command} with status {status}")]
     Rejected { command: &'static str, status: u16 },
     #[error("bad reply to DCA1000 command {command}: {source}")]
@@ -32,7 +37,9 @@ pub enum BoardError {
         #[source]
         source: std::io::Error,
     },
-    #[error("the radar is silent: no data {waited_ms} ms after sensorStart; the first packet was due after {expected_ms} ms")]
+    #[error(
+        "the radar is silent: no data {waited_ms} ms after sensorStart; the first packet was due after {expected_ms} ms"
+    )]
     RadarSilent { expected_ms: u64, waited_ms: u64 },
     #[error("starting the radar failed: {0}")]
     SensorStart(String),
@@ -122,12 +129,15 @@ pub fn record_frames(
     let sensor_at = Instant::now();
     let period = Duration::from_secs_f64(plan.frame_period_s.max(0.0));
     let total_bytes = plan.frames * plan.frame_bytes as u64;
-    let frames_for_first_packet =
-        (RAW_PAYLOAD_LEN as u64).min(total_bytes).div_ceil(plan.frame_bytes.max(1) as u64);
+    let frames_for_first_packet = (RAW_PAYLOAD_LEN as u64)
+        .min(total_bytes)
+        .div_ceil(plan.frame_bytes.max(1) as u64);
     let first_due = period.mul_f64(frames_for_first_packet as f64);
     let first_deadline = sensor_at + first_due + plan.first_frame_margin;
-    let end_deadline =
-        sensor_at + period.mul_f64(plan.frames as f64) + plan.stop_delay + Duration::from_millis(500);
+    let end_deadline = sensor_at
+        + period.mul_f64(plan.frames as f64)
+        + plan.stop_delay
+        + Duration::from_millis(500);
     let mut emitted = 0u64;
     while emitted < plan.frames {
         let now = Instant::now();

@@ -137,7 +137,10 @@ impl FaultInjector {
     }
 
     fn emit(&mut self, datagram: Vec<u8>, duplicate: bool, out: &mut Vec<Vec<u8>>) {
-        if let Some(seq) = datagram.get(..4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])) {
+        if let Some(seq) = datagram
+            .get(..4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        {
             match self.max_sequence {
                 Some(max) if seq < max => self.truth.reordered += 1,
                 _ => self.max_sequence = Some(seq),
@@ -180,7 +183,10 @@ mod tests {
         let (b, tb) = run();
         assert_eq!(a, b);
         assert_eq!(ta, tb);
-        assert!(ta.dropped > 50 && ta.reordered > 20 && ta.duplicated > 10, "{ta:?}");
+        assert!(
+            ta.dropped > 50 && ta.reordered > 20 && ta.duplicated > 10,
+            "{ta:?}"
+        );
         assert_eq!(ta.emitted, 2000 - ta.dropped + ta.duplicated);
     }
 }

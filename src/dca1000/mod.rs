@@ -23,7 +23,9 @@ pub mod samples;
 pub mod sim;
 pub mod udp;
 
-pub use board::{BoardError, CaptureBoard, CaptureReport, ReceiveCounters, RecordPlan, record_frames};
+pub use board::{
+    BoardError, CaptureBoard, CaptureReport, ReceiveCounters, RecordPlan, record_frames,
+};
 pub use command::{AsyncEvent, Command, CommandCode, FpgaConfig, PacketConfig, Response};
 pub use packet::DataPacket;
 pub use reassembler::{Frame, Reassembler, StreamStats};

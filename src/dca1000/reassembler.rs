@@ -19,10 +19,18 @@ use super::packet::{DataPacket, PacketError, RAW_PAYLOAD_LEN};
 
 /// Default distance past a frame's end after which it is handed out incomplete: 64 packets.
 pub const DEFAULT_REORDER_WINDOW_BYTES: u64 = 64 * RAW_PAYLOAD_LEN as u64;
-/// Sequence numbers more than this far below the first one seen are counted late.
+/// The sequence window starts this far below the sequence number of stream offset 0.
 const SEQUENCE_SLACK: u32 = 4096;
-/// Offsets more than this far past the furthest byte seen are treated as corrupt.
-const MAX_OFFSET_JUMP_BYTES: u64 = 1 << 30;
+/// Offsets more than this far past the furthest byte seen (24 s of the mmNorm stream) are
+/// treated as corrupt: the frames in between would be allocated.
+const MAX_OFFSET_JUMP_BYTES: u64 = 64 << 20;
+/// In raw mode a packet's sequence number and byte offset advance together (every payload but
+/// the last is 1456 bytes). A packet whose sequence number is further than this from the one its
+/// offset implies is treated as corrupt; this also bounds the memory of the sequence set.
+const MAX_SEQUENCE_SKEW: u32 = 1 << 16;
+/// Sequence numbers tracked past the window's base: 2²⁷ packets (195 GB, 20 h of the mmNorm
+/// stream) in a 16 MiB bit set.
+const MAX_TRACKED_SEQUENCES: u32 = 1 << 27;
 
 /// One frame of the stream.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -133,9 +141,14 @@ impl SequenceSet {
         }
     }
 
-    /// Inserts `seq`; returns whether it was new. `None` if it lies below the base.
+    /// Inserts `seq`; returns whether it was new. `None` if it lies outside the window
+    /// (sequence numbers compare modulo 2³²).
     fn insert(&mut self, seq: u32) -> Option<bool> {
-        let i = seq.checked_sub(self.base)? as usize;
+        let i = seq.wrapping_sub(self.base);
+        if i >= MAX_TRACKED_SEQUENCES {
+            return None;
+        }
+        let i = i as usize;
         let (word, bit) = (i / 64, i % 64);
         if word >= self.bits.len() {
             self.bits.resize(word + 1, 0);
@@ -146,14 +159,29 @@ impl SequenceSet {
         Some(fresh)
     }
 
+    /// How many of `first ..= last` are in the set.
     fn count_in(&self, first: u32, last: u32) -> u64 {
-        (first..=last)
-            .filter(|&s| {
-                s.checked_sub(self.base)
-                    .map(|i| i as usize)
-                    .is_some_and(|i| self.bits.get(i / 64).is_some_and(|w| w & (1 << (i % 64)) != 0))
-            })
-            .count() as u64
+        let lo = u64::from(first.wrapping_sub(self.base));
+        let hi = u64::from(last.wrapping_sub(self.base));
+        if hi < lo {
+            return 0;
+        }
+        let mut total = 0u64;
+        for (w, &word) in self.bits.iter().enumerate() {
+            let (start, end) = (w as u64 * 64, w as u64 * 64 + 63);
+            if end < lo || start > hi {
+                continue;
+            }
+            let mut mask = u64::MAX;
+            if lo > start {
+                mask &= u64::MAX << (lo - start);
+            }
+            if hi < end {
+                mask &= u64::MAX >> (end - hi);
+            }
+            total += u64::from((word & mask).count_ones());
+        }
+        total
     }
 }
 
@@ -235,6 +263,10 @@ impl Reassembler {
             self.stats.malformed += 1;
             return Ok(());
         }
+        if !self.is_plausible(&packet) {
+            self.stats.malformed += 1;
+            return Ok(());
+        }
         self.stats.packets += 1;
         if !self.note_sequence(&packet) {
             self.stats.duplicates += 1;
@@ -245,24 +277,31 @@ impl Reassembler {
         Ok(())
     }
 
+    /// Whether the sequence number agrees with the offset, given the first packet's.
+    fn is_plausible(&self, packet: &DataPacket<'_>) -> bool {
+        let Some(origin) = self.origin_sequence else {
+            return true;
+        };
+        let implied = origin.wrapping_add((packet.byte_offset / RAW_PAYLOAD_LEN as u64) as u32);
+        (packet.sequence.wrapping_sub(implied) as i32).unsigned_abs() <= MAX_SEQUENCE_SKEW
+    }
+
     /// Records the sequence number; false for a duplicate.
     fn note_sequence(&mut self, packet: &DataPacket<'_>) -> bool {
         let seq = packet.sequence;
-        if self.origin_sequence.is_none() {
-            let packets_before = packet.byte_offset / RAW_PAYLOAD_LEN as u64;
-            self.origin_sequence =
-                Some(seq.wrapping_sub(u32::try_from(packets_before).unwrap_or(u32::MAX)));
-        }
+        let origin = *self.origin_sequence.get_or_insert_with(|| {
+            seq.wrapping_sub((packet.byte_offset / RAW_PAYLOAD_LEN as u64) as u32)
+        });
         let set = self
             .sequences
-            .get_or_insert_with(|| SequenceSet::new(seq.saturating_sub(SEQUENCE_SLACK)));
+            .get_or_insert_with(|| SequenceSet::new(origin.wrapping_sub(SEQUENCE_SLACK)));
         match set.insert(seq) {
             Some(false) => return false,
             Some(true) => {}
             None => self.stats.late += 1,
         }
         match self.max_sequence {
-            Some(max) if seq < max => self.stats.reordered += 1,
+            Some(max) if (seq.wrapping_sub(max) as i32) < 0 => self.stats.reordered += 1,
             _ => self.max_sequence = Some(seq),
         }
         true
@@ -302,7 +341,8 @@ impl Reassembler {
             }
             let a = (cursor - frame_start) as usize;
             let b = (piece_end - frame_start) as usize;
-            let src = &packet.payload[(cursor - payload_origin) as usize..(piece_end - payload_origin) as usize];
+            let src = &packet.payload
+                [(cursor - payload_origin) as usize..(piece_end - payload_origin) as usize];
             let frame = &mut self.pending[slot];
             frame.data[a..b].copy_from_slice(src);
             frame.mark(a, b);
@@ -315,10 +355,7 @@ impl Reassembler {
     /// (all of them when `all`).
     fn release(&mut self, all: bool) {
         let f = self.frame_bytes as u64;
-        loop {
-            let Some(front) = self.pending.front() else {
-                break;
-            };
+        while let Some(front) = self.pending.front() {
             let frame_end = (self.next_frame + 1) * f;
             let left_behind = frame_end + self.reorder_window_bytes <= self.max_end_offset;
             if !(front.is_full() || left_behind || all) {
@@ -366,9 +403,9 @@ impl Reassembler {
     /// seen or, with `expected_frames`, the sequence of the recording's final raw packet.
     fn lost_packets(&self) -> u64 {
         let (Some(origin), Some(set)) = (self.origin_sequence, &self.sequences) else {
-            return self
-                .expected_frames
-                .map_or(0, |n| (n * self.frame_bytes as u64).div_ceil(RAW_PAYLOAD_LEN as u64));
+            return self.expected_frames.map_or(0, |n| {
+                (n * self.frame_bytes as u64).div_ceil(RAW_PAYLOAD_LEN as u64)
+            });
         };
         let mut last = self.max_sequence.unwrap_or(origin);
         if let Some(n) = self.expected_frames {
@@ -377,10 +414,10 @@ impl Reassembler {
                 last = origin.wrapping_add(u32::try_from(total - 1).unwrap_or(u32::MAX));
             }
         }
-        if last < origin {
+        let span = u64::from(last.wrapping_sub(origin)) + 1;
+        if span > u64::from(MAX_TRACKED_SEQUENCES) {
             return 0;
         }
-        let span = u64::from(last - origin) + 1;
         span - set.count_in(origin, last).min(span)
     }
 }
@@ -509,6 +546,16 @@ mod tests {
         r.push(&far).unwrap();
         assert_eq!(r.stats().malformed, 2);
         assert_eq!(r.stats().bytes, 0);
+        // A sequence number that disagrees with its offset is corrupt, not a reason to track
+        // four billion sequence numbers.
+        let s = stream(2, 8192);
+        let packets = packetize(&s, 1);
+        r.push(&packets[0]).unwrap();
+        let mut wild = packets[1].clone();
+        wild[..4].copy_from_slice(&4_000_000_000u32.to_le_bytes());
+        r.push(&wild).unwrap();
+        assert_eq!(r.stats().malformed, 3);
+        assert_eq!(r.stats().packets, 1);
     }
 
     trait Concat {

@@ -83,7 +83,8 @@ impl FrameLayout {
         };
         let n = self.samples_per_chirp;
         let mut out = vec![Complex::new(0i16, 0i16); self.chirps_per_frame * self.rx_count * n];
-        let word = |instant: &[u8], w: usize| i16::from_le_bytes([instant[2 * w], instant[2 * w + 1]]);
+        let word =
+            |instant: &[u8], w: usize| i16::from_le_bytes([instant[2 * w], instant[2 * w + 1]]);
         for (c, chirp) in frame.chunks_exact(n * BYTES_PER_INSTANT).enumerate() {
             for (s, instant) in chirp.chunks_exact(BYTES_PER_INSTANT).enumerate() {
                 for rx in 0..self.rx_count {
@@ -177,9 +178,7 @@ mod tests {
             rx_count: 2,
             iq_order: IqOrder::IFirst,
         };
-        let bytes = l
-            .encode(&[Complex::new(3, 4), Complex::new(5, 6)])
-            .unwrap();
+        let bytes = l.encode(&[Complex::new(3, 4), Complex::new(5, 6)]).unwrap();
         let words: Vec<i16> = bytes
             .chunks(2)
             .map(|b| i16::from_le_bytes([b[0], b[1]]))

@@ -329,9 +329,8 @@ impl BoardCore {
             && self.streaming.is_none()
             && !self.lvds_seen_or_reported
         {
-            let timer = Duration::from_secs_f64(
-                f64::from(fpga.timer_s) / self.config.time_scale.max(1e-6),
-            );
+            let timer =
+                Duration::from_secs_f64(f64::from(fpga.timer_s) / self.config.time_scale.max(1e-6));
             if now >= since + timer {
                 self.lvds_seen_or_reported = true;
                 self.push_status(&[AsyncEvent::NoLvdsData]);
@@ -543,7 +542,9 @@ fn run(
         let now = Instant::now();
         let wait = core
             .next_deadline()
-            .map_or(Duration::from_millis(20), |d| d.saturating_duration_since(now))
+            .map_or(Duration::from_millis(20), |d| {
+                d.saturating_duration_since(now)
+            })
             .clamp(Duration::from_micros(200), Duration::from_millis(2));
         control.set_read_timeout(Some(wait)).ok();
         if let Ok((n, from)) = control.recv_from(&mut buf) {
@@ -620,13 +621,19 @@ mod tests {
         core.poll(t0 + Duration::from_millis(10));
         assert_eq!(drain(&mut core).0.len(), 11);
         core.poll(t0 + Duration::from_millis(1900));
-        assert!(drain(&mut core).0.is_empty(), "the tail waits for the flush");
+        assert!(
+            drain(&mut core).0.is_empty(),
+            "the tail waits for the flush"
+        );
         core.poll(t0 + Duration::from_millis(2010));
         let (tail, _) = drain(&mut core);
         assert_eq!(DataPacket::parse(&tail[0]).unwrap().payload.len(), 1280);
         core.handle_command(&Command::RecordStop.encode(), t0 + Duration::from_secs(3));
         let (_, replies) = drain(&mut core);
-        assert_eq!(replies[1].status, AsyncEvent::encode(&[AsyncEvent::RecordCompleted]));
+        assert_eq!(
+            replies[1].status,
+            AsyncEvent::encode(&[AsyncEvent::RecordCompleted])
+        );
     }
 
     #[test]
@@ -645,7 +652,10 @@ mod tests {
         core.poll(t0 + Duration::from_millis(1001));
         let status = drain(&mut core).1[0];
         assert!(status.is_async_status());
-        assert_eq!(AsyncEvent::decode(status.status), vec![AsyncEvent::NoLvdsData]);
+        assert_eq!(
+            AsyncEvent::decode(status.status),
+            vec![AsyncEvent::NoLvdsData]
+        );
     }
 
     #[test]

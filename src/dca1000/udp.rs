@@ -9,9 +9,9 @@
 //! board's IP is accepted.
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -156,7 +156,8 @@ fn io_err(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> BoardError 
 impl UdpBoard {
     /// Binds both host ports and starts the receive thread.
     pub fn open(config: &Dca1000Config) -> Result<Self, BoardError> {
-        let control_addr = SocketAddr::V4(SocketAddrV4::new(config.host_ip, config.host_config_port));
+        let control_addr =
+            SocketAddr::V4(SocketAddrV4::new(config.host_ip, config.host_config_port));
         let control = UdpSocket::bind(control_addr)
             .map_err(io_err(format!("binding the config port {control_addr}")))?;
         let data_addr = SocketAddr::V4(SocketAddrV4::new(config.host_ip, config.host_data_port));
@@ -244,8 +245,10 @@ impl UdpBoard {
                 Err(e) if is_timeout(&e) => continue,
                 Err(e) => return Err(io_err(format!("waiting for the reply to {name}"))(e)),
             };
-            let reply = Response::decode(&buf[..n])
-                .map_err(|source| BoardError::BadReply { command: name, source })?;
+            let reply = Response::decode(&buf[..n]).map_err(|source| BoardError::BadReply {
+                command: name,
+                source,
+            })?;
             if reply.is_async_status() {
                 self.events.extend(AsyncEvent::decode(reply.status));
             } else if reply.code == command.code() as u16 {
@@ -257,7 +260,10 @@ impl UdpBoard {
     fn expect_ok(&mut self, command: Command, name: &'static str) -> Result<(), BoardError> {
         match self.exchange(command, name)? {
             0 => Ok(()),
-            status => Err(BoardError::Rejected { command: name, status }),
+            status => Err(BoardError::Rejected {
+                command: name,
+                status,
+            }),
         }
     }
 }
@@ -371,7 +377,10 @@ fn socket_inode(socket: &UdpSocket) -> Option<u64> {
     use std::os::fd::AsRawFd as _;
     let link = std::fs::read_link(format!("/proc/self/fd/{}", socket.as_raw_fd())).ok()?;
     let text = link.to_str()?;
-    text.strip_prefix("socket:[")?.strip_suffix(']')?.parse().ok()
+    text.strip_prefix("socket:[")?
+        .strip_suffix(']')?
+        .parse()
+        .ok()
 }
 
 /// The `drops` column of the `/proc/net/udp` row whose `inode` column is `inode`.

@@ -76,7 +76,10 @@ impl SimConfig {
             ));
         }
         if self.full_scale <= 0 {
-            return Err(format!("sim.full_scale = {} must be positive", self.full_scale));
+            return Err(format!(
+                "sim.full_scale = {} must be positive",
+                self.full_scale
+            ));
         }
         if self.scene.is_some() && self.capture_dir.is_some() {
             return Err("sim.scene and sim.capture_dir are both set; choose one".into());
@@ -85,8 +88,14 @@ impl SimConfig {
             .validate()
             .map_err(|e| format!("sim.dca1000_{e}"))?;
         for (name, p) in [
-            ("garble_echo_probability", self.cli_faults.garble_echo_probability),
-            ("drop_reply_probability", self.cli_faults.drop_reply_probability),
+            (
+                "garble_echo_probability",
+                self.cli_faults.garble_echo_probability,
+            ),
+            (
+                "drop_reply_probability",
+                self.cli_faults.drop_reply_probability,
+            ),
         ] {
             if !(0.0..=1.0).contains(&p) {
                 return Err(format!("sim.cli_faults.{name} = {p} must lie in 0..=1"));
@@ -140,10 +149,12 @@ impl LabConfig {
         if let Some(c) = config.sim.capture_dir.as_mut() {
             resolve(c);
         }
-        config.validate().map_err(|message| LabConfigError::Invalid {
-            path: path.to_path_buf(),
-            message,
-        })?;
+        config
+            .validate()
+            .map_err(|message| LabConfigError::Invalid {
+                path: path.to_path_buf(),
+                message,
+            })?;
         Ok(config)
     }
 
@@ -178,7 +189,11 @@ mod tests {
 
     #[test]
     fn relative_paths_resolve_against_the_config_file() {
-        let c = LabConfig::parse("[radar]\nprofile = \"../firmware_cfg/a.cfg\"\n", Path::new("config/lab.toml")).unwrap();
+        let c = LabConfig::parse(
+            "[radar]\nprofile = \"../firmware_cfg/a.cfg\"\n",
+            Path::new("config/lab.toml"),
+        )
+        .unwrap();
         assert_eq!(c.radar.profile, Path::new("config/../firmware_cfg/a.cfg"));
     }
 }

@@ -141,7 +141,7 @@ fn run(
     progress.finish();
     report.capture = recorded?;
     flushed.map_err(io(&partial))?;
-    if let Some(r) = radar.as_deref_mut()
+    if let Some(r) = radar
         && let Err(e) = r.stop()
     {
         tracing::warn!("sensorStop after the capture failed: {e}");

@@ -8,8 +8,10 @@ use std::sync::Arc;
 
 use super::config::LabConfig;
 use crate::capture::read_capture_dir;
-use crate::dca1000::sim::{AdcStream, CoreConfig, DcaSimulator, SimAddresses, SimStats, StreamPlan};
 use crate::dca1000::samples::FrameLayout;
+use crate::dca1000::sim::{
+    AdcStream, CoreConfig, DcaSimulator, SimAddresses, SimStats, StreamPlan,
+};
 use crate::radar::RadarProfile;
 use crate::radar::sim::{CliSimCore, CliSimStats, CliSimulator, SensorEvent};
 use crate::sim::{Scene, simulate};
@@ -93,7 +95,8 @@ impl SimChain {
             SensorEvent::Stop => trigger.stop(),
         });
         let cli = CliSimCore::new(lab.sim.unknown_reply, lab.sim.cli_faults.clone());
-        let radar = CliSimulator::spawn(cli, link.or(Some(lab.sim.radar_link.as_path())), on_event)?;
+        let radar =
+            CliSimulator::spawn(cli, link.or(Some(lab.sim.radar_link.as_path())), on_event)?;
         Ok(Self { board, radar })
     }
 

@@ -143,7 +143,9 @@ pub fn run_session(
         let now = Instant::now();
         let wait = session
             .poll_timeout()
-            .map_or(Duration::from_millis(50), |d| d.saturating_duration_since(now));
+            .map_or(Duration::from_millis(50), |d| {
+                d.saturating_duration_since(now)
+            });
         let n = link
             .read_bytes(&mut buf, wait.min(Duration::from_millis(50)))
             .map_err(|e| CliError::Io(format!("reading: {e}")))?;
@@ -187,7 +189,12 @@ impl<L: SerialLink> CliRadar<L> {
 
 /// The commands `configure` sends for a profile.
 pub fn configure_commands(profile: &RadarProfile) -> Vec<String> {
-    let first = |name: &str| profile.script.iter().any(|l| l.split_whitespace().next() == Some(name));
+    let first = |name: &str| {
+        profile
+            .script
+            .iter()
+            .any(|l| l.split_whitespace().next() == Some(name))
+    };
     let mut commands = Vec::new();
     if !first("sensorStop") {
         commands.push("sensorStop".to_string());

@@ -236,7 +236,10 @@ impl CliSimCore {
             }
             ("channelCfg", _) => {
                 self.script.push(text.to_string());
-                (vec!["Debug: Init Calibration Status = 0x1ffe".into()], Ok(()))
+                (
+                    vec!["Debug: Init Calibration Status = 0x1ffe".into()],
+                    Ok(()),
+                )
             }
             _ => {
                 self.script.push(text.to_string());
@@ -393,11 +396,20 @@ mod tests {
             reply(&mut core, "sensorStop"),
             "sensorStop\nIgnored: Sensor is already stopped\n\rDone\n\rmmwDemo:/>"
         );
-        assert_eq!(reply(&mut core, "frobnicate 1"), "frobnicate 1\nError -50\n\rmmwDemo:/>");
-        assert_eq!(reply(&mut core, "adcCfg 2"), "adcCfg 2\nError -51\n\rmmwDemo:/>");
+        assert_eq!(
+            reply(&mut core, "frobnicate 1"),
+            "frobnicate 1\nError -50\n\rmmwDemo:/>"
+        );
+        assert_eq!(
+            reply(&mut core, "adcCfg 2"),
+            "adcCfg 2\nError -51\n\rmmwDemo:/>"
+        );
         assert!(reply(&mut core, "sensorStart").contains("Error -1"));
         let text = std::fs::read_to_string("firmware_cfg/iwr1443_mmnorm.cfg").unwrap();
-        for line in text.lines().filter(|l| !l.starts_with('%') && !l.is_empty()) {
+        for line in text
+            .lines()
+            .filter(|l| !l.starts_with('%') && !l.is_empty())
+        {
             assert!(reply(&mut core, line).contains("Done"), "{line}");
         }
         assert_eq!(

@@ -212,7 +212,10 @@ mod tests {
             ]
         );
         let e = events(&[b"CLI:/>version\n"]);
-        assert_eq!(e, vec![ReplyEvent::Prompt(PromptKind::Cli), line("version")]);
+        assert_eq!(
+            e,
+            vec![ReplyEvent::Prompt(PromptKind::Cli), line("version")]
+        );
     }
 
     #[test]

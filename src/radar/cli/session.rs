@@ -45,7 +45,9 @@ impl Default for SessionConfig {
 /// Why a session failed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CliError {
-    #[error("no prompt from the radar after {attempts} newlines (is the CLI firmware flashed, the port the CLI one, the board powered?)")]
+    #[error(
+        "no prompt from the radar after {attempts} newlines (is the CLI firmware flashed, the port the CLI one, the board powered?)"
+    )]
     NoPrompt { attempts: u32 },
     #[error("`{command}`: no reply after {attempts} attempts of {timeout_ms} ms each")]
     Timeout {
@@ -92,7 +94,9 @@ pub struct CommandOutcome {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum State {
     /// Waiting for a prompt after a bare newline; `attempts` newlines sent so far.
-    Resync { attempts: u32 },
+    Resync {
+        attempts: u32,
+    },
     /// Waiting for `Done`/`Error` to the current command.
     Reply,
     /// The current command is done; waiting for its prompt.
@@ -180,7 +184,9 @@ impl CliSession {
     }
 
     fn resync(&mut self, attempts: u32, now: Instant) {
-        self.state = State::Resync { attempts: attempts + 1 };
+        self.state = State::Resync {
+            attempts: attempts + 1,
+        };
         self.transmit.push_back(b"\n".to_vec());
         self.deadline = Some(now + self.config.resync_interval);
     }
@@ -387,7 +393,10 @@ mod tests {
         assert_eq!(sent(&mut s), ["\n"]);
         s.handle_input(b"\n\rmmwDemo:/>", t);
         assert_eq!(sent(&mut s), ["sensorStop\n"]);
-        s.handle_input(b"sensorStop\nIgnored: Sensor is already stopped\n\rDone\n\rmmwDemo:/>", t);
+        s.handle_input(
+            b"sensorStop\nIgnored: Sensor is already stopped\n\rDone\n\rmmwDemo:/>",
+            t,
+        );
         assert_eq!(sent(&mut s), ["flushCfg\n"]);
         s.handle_input(b"flushCfg\nDone\n\rmmwDemo:/>", t);
         let outcomes = s.result().unwrap().unwrap();
@@ -417,7 +426,10 @@ mod tests {
     fn a_refusal_fails_with_the_code_and_its_meaning() {
         let (mut s, t) = start(&["chirpCfg 0 0 0 0 0 0 0 1"]);
         sent(&mut s);
-        s.handle_input(b"mmwDemo:/>chirpCfg 0 0 0 0 0 0 0 1\nError -58\n\rmmwDemo:/>", t);
+        s.handle_input(
+            b"mmwDemo:/>chirpCfg 0 0 0 0 0 0 0 1\nError -58\n\rmmwDemo:/>",
+            t,
+        );
         let err = s.result().unwrap().unwrap_err().clone();
         assert_eq!(
             err.to_string(),
