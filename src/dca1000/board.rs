@@ -85,7 +85,8 @@ pub struct RecordPlan {
     pub frames: u64,
     pub frame_bytes: usize,
     pub frame_period_s: f64,
-    /// How long past the first packet's due time a silent radar is tolerated.
+    /// How long past the first packet's due time a silent radar is tolerated (the shipped
+    /// 40 ms when mmnormd starts the radar; the FPGA's `NO_LVDS_DATA` timer when it does not).
     pub first_frame_margin: Duration,
     /// The FPGA's idle flush of a partial payload (2 s), waited for when data is missing.
     pub stop_delay: Duration,
@@ -134,10 +135,11 @@ pub fn record_frames(
         .div_ceil(plan.frame_bytes.max(1) as u64);
     let first_due = period.mul_f64(frames_for_first_packet as f64);
     let first_deadline = sensor_at + first_due + plan.first_frame_margin;
-    let end_deadline = sensor_at
-        + period.mul_f64(plan.frames as f64)
-        + plan.stop_delay
-        + Duration::from_millis(500);
+    // The end is reckoned from the first packet: a radar started by hand (`--no-radar`) may
+    // begin long after the recording.
+    let run_time =
+        period.mul_f64(plan.frames as f64) + plan.stop_delay + Duration::from_millis(500);
+    let mut end_deadline = sensor_at + first_due + plan.first_frame_margin + run_time;
     let mut emitted = 0u64;
     while emitted < plan.frames {
         let now = Instant::now();
@@ -160,6 +162,7 @@ pub fn record_frames(
         if let Some(datagram) = board.recv_datagram(wait)? {
             if report.first_packet_ms.is_none() {
                 report.first_packet_ms = Some(sensor_at.elapsed().as_secs_f64() * 1e3);
+                end_deadline = Instant::now() + run_time;
             }
             // A malformed datagram is counted by the reassembler and otherwise ignored.
             reassembler.push(&datagram).ok();

@@ -9,6 +9,7 @@
 //! - [`board`]: the [`board::CaptureBoard`] trait and the capture sequence of B4;
 //! - [`udp`]: the socket2 transport with its receive thread and kernel-drop reading;
 //! - [`sim`]: a DCA1000 simulator that answers every command and streams a capture's frames;
+//! - [`loopback`]: that simulator behind the [`board::CaptureBoard`] trait, in-process;
 //! - [`fault`]: the seeded fault injector (loss, reordering, duplicates) the simulator applies.
 //!
 //! The codecs and the reassembler never touch a socket; the transport and the simulator are thin
@@ -17,6 +18,7 @@
 pub mod board;
 pub mod command;
 pub mod fault;
+pub mod loopback;
 pub mod packet;
 pub mod reassembler;
 pub mod samples;

@@ -414,7 +414,7 @@ pub struct SimAddresses {
     pub host_data: SocketAddr,
 }
 
-enum TriggerMsg {
+pub(crate) enum TriggerMsg {
     Start(StreamPlan),
     Stop,
 }
@@ -424,6 +424,10 @@ enum TriggerMsg {
 pub struct SensorTrigger(mpsc::Sender<TriggerMsg>);
 
 impl SensorTrigger {
+    pub(crate) fn new(tx: mpsc::Sender<TriggerMsg>) -> Self {
+        Self(tx)
+    }
+
     pub fn start(&self, plan: StreamPlan) {
         self.0.send(TriggerMsg::Start(plan)).ok();
     }

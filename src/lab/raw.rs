@@ -124,7 +124,11 @@ fn run(
         frames: job.frames,
         frame_bytes: layout.frame_bytes(),
         frame_period_s: job.profile.frame_period_s(),
-        first_frame_margin: Duration::from_millis(d.first_frame_margin_ms),
+        first_frame_margin: if radar.is_some() {
+            Duration::from_millis(d.first_frame_margin_ms)
+        } else {
+            Duration::from_secs(u64::from(d.fpga.timer_s))
+        },
         stop_delay: Duration::from_secs_f64(d.stop_delay_s),
     };
     let progress = Progress::new("capture", job.frames, job.quiet);
