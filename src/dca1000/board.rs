@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
-use super::command::{AsyncEvent, CodecError, FpgaConfig, FpgaVersion, PacketConfig};
+use super::command::{AsyncEvent, CodecError, Command, FpgaConfig, FpgaVersion, PacketConfig};
 use super::packet::RAW_PAYLOAD_LEN;
 use super::reassembler::{Frame, Reassembler, StreamStats};
 
@@ -77,6 +77,41 @@ pub trait CaptureBoard {
     /// Async status events received since the last call.
     fn take_events(&mut self) -> Vec<AsyncEvent>;
     fn counters(&self) -> ReceiveCounters;
+}
+
+/// The request–reply exchange of the config port; every board's command sequences are built on
+/// it.
+pub trait Exchange {
+    /// Sends `command` and returns the status of its reply.
+    fn exchange(&mut self, command: Command, name: &'static str) -> Result<u16, BoardError>;
+
+    /// Sends `command` and requires status 0.
+    fn expect_ok(&mut self, command: Command, name: &'static str) -> Result<(), BoardError> {
+        match self.exchange(command, name)? {
+            0 => Ok(()),
+            status => Err(BoardError::Rejected {
+                command: name,
+                status,
+            }),
+        }
+    }
+
+    /// `SYSTEM_CONNECT`, then `READ_FPGA_VERSION`.
+    fn connect_sequence(&mut self) -> Result<FpgaVersion, BoardError> {
+        self.expect_ok(Command::SystemConnect, "SYSTEM_CONNECT")?;
+        let status = self.exchange(Command::ReadFpgaVersion, "READ_FPGA_VERSION")?;
+        Ok(FpgaVersion::from_status(status))
+    }
+
+    /// `CONFIG_FPGA_GEN`, then `CONFIG_PACKET_DATA`.
+    fn configure_sequence(
+        &mut self,
+        fpga: FpgaConfig,
+        packets: PacketConfig,
+    ) -> Result<(), BoardError> {
+        self.expect_ok(Command::ConfigFpgaGen(fpga), "CONFIG_FPGA_GEN")?;
+        self.expect_ok(Command::ConfigPacketData(packets), "CONFIG_PACKET_DATA")
+    }
 }
 
 /// Timing of one recording.

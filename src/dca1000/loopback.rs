@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
-use super::board::{BoardError, CaptureBoard, ReceiveCounters};
+use super::board::{BoardError, CaptureBoard, Exchange, ReceiveCounters};
 use super::command::{AsyncEvent, Command, FpgaConfig, FpgaVersion, PacketConfig, Response};
 use super::sim::{AdcStream, BoardCore, CoreConfig, Output, SensorTrigger, SimStats, TriggerMsg};
 
@@ -68,7 +68,9 @@ impl LoopbackBoard {
             }
         }
     }
+}
 
+impl Exchange for LoopbackBoard {
     fn exchange(&mut self, command: Command, name: &'static str) -> Result<u16, BoardError> {
         self.core.handle_command(&command.encode(), Instant::now());
         self.pump();
@@ -82,28 +84,15 @@ impl LoopbackBoard {
             waited_ms: 0,
         })
     }
-
-    fn expect_ok(&mut self, command: Command, name: &'static str) -> Result<(), BoardError> {
-        match self.exchange(command, name)? {
-            0 => Ok(()),
-            status => Err(BoardError::Rejected {
-                command: name,
-                status,
-            }),
-        }
-    }
 }
 
 impl CaptureBoard for LoopbackBoard {
     fn connect(&mut self) -> Result<FpgaVersion, BoardError> {
-        self.expect_ok(Command::SystemConnect, "SYSTEM_CONNECT")?;
-        let status = self.exchange(Command::ReadFpgaVersion, "READ_FPGA_VERSION")?;
-        Ok(FpgaVersion::from_status(status))
+        self.connect_sequence()
     }
 
     fn configure(&mut self, fpga: FpgaConfig, packets: PacketConfig) -> Result<(), BoardError> {
-        self.expect_ok(Command::ConfigFpgaGen(fpga), "CONFIG_FPGA_GEN")?;
-        self.expect_ok(Command::ConfigPacketData(packets), "CONFIG_PACKET_DATA")
+        self.configure_sequence(fpga, packets)
     }
 
     fn start_record(&mut self) -> Result<(), BoardError> {

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use socket2::{Domain, Protocol, Socket, Type};
 
-use super::board::{BoardError, CaptureBoard, ReceiveCounters};
+use super::board::{BoardError, CaptureBoard, Exchange, ReceiveCounters};
 use super::command::{AsyncEvent, Command, FpgaConfig, FpgaVersion, PacketConfig, Response};
 use super::samples::IqOrder;
 
@@ -221,8 +221,17 @@ impl UdpBoard {
     pub fn data_addr(&self) -> SocketAddr {
         self.data_addr
     }
+}
 
-    /// Sends a command and waits for its reply; async status packets met on the way are kept.
+fn is_timeout(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+    )
+}
+
+/// Sends a command and waits for its reply; async status packets met on the way are kept.
+impl Exchange for UdpBoard {
     fn exchange(&mut self, command: Command, name: &'static str) -> Result<u16, BoardError> {
         self.control
             .send_to(&command.encode(), self.board_control)
@@ -256,35 +265,15 @@ impl UdpBoard {
             }
         }
     }
-
-    fn expect_ok(&mut self, command: Command, name: &'static str) -> Result<(), BoardError> {
-        match self.exchange(command, name)? {
-            0 => Ok(()),
-            status => Err(BoardError::Rejected {
-                command: name,
-                status,
-            }),
-        }
-    }
-}
-
-fn is_timeout(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-    )
 }
 
 impl CaptureBoard for UdpBoard {
     fn connect(&mut self) -> Result<FpgaVersion, BoardError> {
-        self.expect_ok(Command::SystemConnect, "SYSTEM_CONNECT")?;
-        let status = self.exchange(Command::ReadFpgaVersion, "READ_FPGA_VERSION")?;
-        Ok(FpgaVersion::from_status(status))
+        self.connect_sequence()
     }
 
     fn configure(&mut self, fpga: FpgaConfig, packets: PacketConfig) -> Result<(), BoardError> {
-        self.expect_ok(Command::ConfigFpgaGen(fpga), "CONFIG_FPGA_GEN")?;
-        self.expect_ok(Command::ConfigPacketData(packets), "CONFIG_PACKET_DATA")
+        self.configure_sequence(fpga, packets)
     }
 
     fn start_record(&mut self) -> Result<(), BoardError> {

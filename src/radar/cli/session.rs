@@ -293,14 +293,7 @@ impl CliSession {
             }
             LineKind::Error(-50) if !c.echo_ok => {
                 let reply = format!("Error -50 after echo {:?}", c.last_other);
-                self.retry(
-                    |c| CliError::NotRecognized {
-                        command: c.command.clone(),
-                        attempts: c.attempts,
-                        reply,
-                    },
-                    now,
-                );
+                self.retry_garbled(reply, now);
             }
             LineKind::Error(code) => {
                 let command = c.command.clone();
@@ -311,15 +304,7 @@ impl CliSession {
                 });
             }
             LineKind::NotRecognized(text) => {
-                let reply = format!("'{text}' is not recognized");
-                self.retry(
-                    |c| CliError::NotRecognized {
-                        command: c.command.clone(),
-                        attempts: c.attempts,
-                        reply,
-                    },
-                    now,
-                );
+                self.retry_garbled(format!("'{text}' is not recognized"), now);
             }
             LineKind::Other(text) => {
                 if c.echo_ok {
@@ -330,6 +315,18 @@ impl CliSession {
                 c.last_other = Some(text);
             }
         }
+    }
+
+    /// Retries a command the radar did not recognise because it arrived garbled.
+    fn retry_garbled(&mut self, reply: String, now: Instant) {
+        self.retry(
+            |c| CliError::NotRecognized {
+                command: c.command.clone(),
+                attempts: c.attempts,
+                reply,
+            },
+            now,
+        );
     }
 
     /// Call when [`poll_timeout`](Self::poll_timeout) has passed.
