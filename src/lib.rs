@@ -36,6 +36,7 @@ pub mod radar;
 pub mod recon;
 pub mod signal;
 pub mod sim;
+pub mod ur;
 
 /// Speed of light in vacuum, m/s (exact, SI). The authors' code mixes this with 3e8 in places;
 /// mmnormd uses this constant everywhere.
