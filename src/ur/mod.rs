@@ -11,5 +11,7 @@
 //! Nothing here opens a socket.
 
 pub mod clock;
+pub mod dashboard;
 pub mod motion;
 pub mod rtde;
+pub mod sim;

@@ -1,0 +1,285 @@
+//! The simulated arm's state, advanced in time: modes, safety, the TCP pose under a `movel`'s
+//! trapezoidal velocity profile, and the controller clock.
+
+use std::time::Instant;
+
+use crate::ur::dashboard::{RobotMode, SafetyStatus};
+
+/// `runtime_state` codes (C4).
+pub const RUNTIME_STOPPED: u32 = 1;
+pub const RUNTIME_PLAYING: u32 = 2;
+
+/// A straight-line move at constant acceleration to `v`, cruise, and deceleration (v²/2a ramps;
+/// a triangle when the line is too short to reach `v`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearMove {
+    pub from: [f64; 6],
+    pub to: [f64; 6],
+    pub speed_m_per_s: f64,
+    pub accel_m_per_s2: f64,
+    pub started_s: f64,
+}
+
+impl LinearMove {
+    fn length_m(&self) -> f64 {
+        (0..3).map(|i| (self.to[i] - self.from[i]).powi(2)).sum::<f64>().sqrt()
+    }
+
+    /// Peak speed, ramp time and total time.
+    fn profile(&self) -> (f64, f64, f64) {
+        let (l, a) = (self.length_m(), self.accel_m_per_s2.max(1e-9));
+        let v = self.speed_m_per_s.min((l * a).sqrt()).max(1e-9);
+        let ramp_t = v / a;
+        let cruise = (l - v * ramp_t).max(0.0) / v;
+        (v, ramp_t, 2.0 * ramp_t + cruise)
+    }
+
+    /// Duration of the move, seconds.
+    pub fn duration_s(&self) -> f64 {
+        self.profile().2
+    }
+
+    /// Distance along the line and speed at `t` seconds after the start.
+    fn progress(&self, t: f64) -> (f64, f64) {
+        let (v, ramp_t, total) = self.profile();
+        let a = self.accel_m_per_s2;
+        let l = self.length_m();
+        if t <= 0.0 {
+            (0.0, 0.0)
+        } else if t < ramp_t {
+            (0.5 * a * t * t, a * t)
+        } else if t < total - ramp_t {
+            (0.5 * a * ramp_t * ramp_t + v * (t - ramp_t), v)
+        } else if t < total {
+            let left = total - t;
+            (l - 0.5 * a * left * left, a * left)
+        } else {
+            (l, 0.0)
+        }
+    }
+
+    /// Pose and TCP speed (linear part) at `now_s`.
+    pub fn sample(&self, now_s: f64) -> ([f64; 6], [f64; 6]) {
+        let (s, speed) = self.progress(now_s - self.started_s);
+        let l = self.length_m().max(1e-12);
+        let f = s / l;
+        let mut pose = self.from;
+        let mut twist = [0.0; 6];
+        for i in 0..6 {
+            pose[i] = self.from[i] + f * (self.to[i] - self.from[i]);
+        }
+        for i in 0..3 {
+            twist[i] = speed * (self.to[i] - self.from[i]) / l;
+        }
+        (pose, twist)
+    }
+}
+
+/// Everything RTDE and the Dashboard report.
+#[derive(Debug, Clone)]
+pub struct ArmState {
+    pub boot: Instant,
+    pub robot_mode: RobotMode,
+    pub safety: SafetyStatus,
+    pub remote_control: bool,
+    pub pose: [f64; 6],
+    pub target_pose: [f64; 6],
+    pub speed: [f64; 6],
+    pub joints: [f64; 6],
+    pub motion: Option<LinearMove>,
+    /// Moves started since boot (each `movel` statement).
+    pub moves_started: u64,
+    pub output_int_registers: [i32; 48],
+    pub input_int_registers: [i32; 48],
+    /// Controller clock: offset (s) and drift (ppm) against the host's monotonic clock.
+    pub clock_offset_s: f64,
+    pub clock_drift_ppm: f64,
+    /// Seconds after the start of this move number (0-based) at which a protective stop fires.
+    pub protective_stop: Option<(u64, f64)>,
+    /// The running program's RTDE watchdog.
+    pub watchdog: Option<Watchdog>,
+    pub watchdog_trips: u64,
+}
+
+/// `rtde_set_watchdog(variable, min_frequency, "stop")` of the running program.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Watchdog {
+    pub variable: String,
+    pub min_frequency_hz: f64,
+    /// Host seconds since boot of the variable's last update.
+    pub last_update_s: f64,
+}
+
+impl ArmState {
+    pub fn new(pose: [f64; 6]) -> Self {
+        Self {
+            boot: Instant::now(),
+            robot_mode: RobotMode::Running,
+            safety: SafetyStatus::Normal,
+            remote_control: true,
+            pose,
+            target_pose: pose,
+            speed: [0.0; 6],
+            joints: [0.0, -1.57, 1.57, -1.57, -1.57, 0.0],
+            motion: None,
+            moves_started: 0,
+            output_int_registers: [0; 48],
+            input_int_registers: [0; 48],
+            clock_offset_s: 0.0,
+            clock_drift_ppm: 0.0,
+            protective_stop: None,
+            watchdog: None,
+            watchdog_trips: 0,
+        }
+    }
+
+    /// Applies an RTDE input package.
+    pub fn apply_inputs(
+        &mut self,
+        names: &[String],
+        values: &[crate::ur::rtde::Value],
+        now: Instant,
+    ) {
+        let now_s = self.host_s(now);
+        for (name, value) in names.iter().zip(values) {
+            if let (Some(i), crate::ur::rtde::Value::Int32(v)) = (
+                name.strip_prefix("input_int_register_")
+                    .and_then(|i| i.parse::<usize>().ok()),
+                value,
+            ) && let Some(slot) = self.input_int_registers.get_mut(i)
+            {
+                *slot = *v;
+            }
+            if let Some(w) = self.watchdog.as_mut()
+                && &w.variable == name
+            {
+                w.last_update_s = now_s;
+            }
+        }
+    }
+
+    /// Arms the program's watchdog.
+    pub fn set_watchdog(&mut self, variable: String, min_frequency_hz: f64, now: Instant) {
+        let last_update_s = self.host_s(now);
+        self.watchdog = Some(Watchdog {
+            variable,
+            min_frequency_hz,
+            last_update_s,
+        });
+    }
+
+    /// Seconds since boot on the host's clock.
+    pub fn host_s(&self, now: Instant) -> f64 {
+        now.saturating_duration_since(self.boot).as_secs_f64()
+    }
+
+    /// The controller's `timestamp` at host time `host_s`.
+    pub fn controller_s(&self, host_s: f64) -> f64 {
+        self.clock_offset_s + host_s * (1.0 + self.clock_drift_ppm * 1e-6)
+    }
+
+    /// `runtime_state`: playing while a move runs.
+    pub fn runtime_state(&self) -> u32 {
+        if self.motion.is_some() {
+            RUNTIME_PLAYING
+        } else {
+            RUNTIME_STOPPED
+        }
+    }
+
+    /// Starts a `movel` (it preempts a running one), if the arm may move.
+    pub fn start_move(&mut self, to: [f64; 6], speed: f64, accel: f64, now: Instant) -> bool {
+        let now_s = self.host_s(now);
+        self.advance(now_s);
+        if self.robot_mode != RobotMode::Running || self.safety.is_stop() {
+            return false;
+        }
+        self.motion = Some(LinearMove {
+            from: self.pose,
+            to,
+            speed_m_per_s: speed,
+            accel_m_per_s2: accel,
+            started_s: now_s,
+        });
+        self.target_pose = to;
+        self.moves_started += 1;
+        true
+    }
+
+    /// Stops motion at once (`stopl`, Dashboard `stop`).
+    pub fn stop(&mut self, now: Instant) {
+        let now_s = self.host_s(now);
+        self.advance(now_s);
+        self.motion = None;
+        self.watchdog = None;
+        self.speed = [0.0; 6];
+        self.target_pose = self.pose;
+    }
+
+    /// Moves the state to host time `now_s`.
+    pub fn advance(&mut self, now_s: f64) {
+        let Some(m) = self.motion.clone() else {
+            return;
+        };
+        if let Some(w) = &self.watchdog {
+            let deadline = w.last_update_s + 1.0 / w.min_frequency_hz.max(1e-3);
+            if now_s > deadline {
+                let (pose, _) = m.sample(deadline);
+                self.pose = pose;
+                self.target_pose = pose;
+                self.speed = [0.0; 6];
+                self.motion = None;
+                self.watchdog = None;
+                self.watchdog_trips += 1;
+                return;
+            }
+        }
+        if let Some((index, after_s)) = self.protective_stop
+            && self.moves_started == index + 1
+            && now_s >= m.started_s + after_s
+        {
+            let (pose, _) = m.sample(m.started_s + after_s);
+            self.pose = pose;
+            self.target_pose = pose;
+            self.speed = [0.0; 6];
+            self.motion = None;
+            self.safety = SafetyStatus::ProtectiveStop;
+            self.protective_stop = None;
+            return;
+        }
+        let (pose, twist) = m.sample(now_s);
+        self.pose = pose;
+        self.speed = twist;
+        if now_s >= m.started_s + m.duration_s() {
+            // The program ends with its move, and its watchdog with it.
+            self.pose = m.to;
+            self.speed = [0.0; 6];
+            self.motion = None;
+            self.watchdog = None;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_movel_follows_its_trapezoid() {
+        let m = LinearMove {
+            from: [0.0; 6],
+            to: [0.5, 0.0, 0.0, 0.0, 0.0, 0.0],
+            speed_m_per_s: 0.25,
+            accel_m_per_s2: 1.0,
+            started_s: 10.0,
+        };
+        // Ramps of 0.25 s over 31.25 mm each, cruise (500 − 62.5) mm / 0.25 m/s = 1.75 s.
+        assert!((m.duration_s() - 2.25).abs() < 1e-12);
+        let (p, v) = m.sample(10.125);
+        assert!((p[0] - 0.5 * 0.125f64.powi(2)).abs() < 1e-12 && (v[0] - 0.125).abs() < 1e-12);
+        let (p, v) = m.sample(11.0);
+        assert!((p[0] - (0.03125 + 0.25 * 0.75)).abs() < 1e-12 && (v[0] - 0.25).abs() < 1e-12);
+        let (p, v) = m.sample(13.0);
+        assert_eq!((p[0], v[0]), (0.5, 0.0));
+    }
+}
