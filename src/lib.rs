@@ -29,6 +29,7 @@ pub mod dca1000;
 pub mod eval;
 pub mod geometry;
 pub mod lab;
+pub mod netio;
 pub mod plot;
 pub mod preview;
 pub mod progress;

@@ -81,7 +81,11 @@ impl SafetyStatus {
         (SafetyStatus::ProtectiveStop, "PROTECTIVE_STOP", 3),
         (SafetyStatus::Recovery, "RECOVERY", 4),
         (SafetyStatus::SafeguardStop, "SAFEGUARD_STOP", 5),
-        (SafetyStatus::SystemEmergencyStop, "SYSTEM_EMERGENCY_STOP", 6),
+        (
+            SafetyStatus::SystemEmergencyStop,
+            "SYSTEM_EMERGENCY_STOP",
+            6,
+        ),
         (SafetyStatus::RobotEmergencyStop, "ROBOT_EMERGENCY_STOP", 7),
         (SafetyStatus::Violation, "VIOLATION", 8),
         (SafetyStatus::Fault, "FAULT", 9),
@@ -131,7 +135,9 @@ pub struct ProgramState {
 /// Why a Dashboard exchange failed.
 #[derive(Debug, thiserror::Error)]
 pub enum DashboardError {
-    #[error("the robot is in Local mode: switch the robot to Remote Control (then mmnormd reconnects to port 29999)")]
+    #[error(
+        "the robot is in Local mode: switch the robot to Remote Control (then mmnormd reconnects to port 29999)"
+    )]
     LocalMode,
     #[error("Dashboard {addr}: {source}")]
     Io {
@@ -320,7 +326,10 @@ mod tests {
 
     #[test]
     fn replies_parse_into_their_types() {
-        assert_eq!(parse_robot_mode("Robotmode: RUNNING"), Some(RobotMode::Running));
+        assert_eq!(
+            parse_robot_mode("Robotmode: RUNNING"),
+            Some(RobotMode::Running)
+        );
         assert_eq!(parse_robot_mode("Robotmode: FLYING"), None);
         assert_eq!(
             parse_safety_status("Safetystatus: PROTECTIVE_STOP"),

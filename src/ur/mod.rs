@@ -13,5 +13,6 @@
 pub mod clock;
 pub mod dashboard;
 pub mod motion;
+pub mod robot;
 pub mod rtde;
 pub mod sim;

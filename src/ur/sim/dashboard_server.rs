@@ -39,7 +39,11 @@ pub(crate) fn reply(arm: &mut ArmState, command: &str, now: Instant) -> String {
         "safetystatus" => format!("Safetystatus: {}", arm.safety.name()),
         "safetymode" => format!("Safetymode: {}", arm.safety.name()),
         "programState" => {
-            let state = if arm.motion.is_some() { "PLAYING" } else { "STOPPED" };
+            let state = if arm.motion.is_some() {
+                "PLAYING"
+            } else {
+                "STOPPED"
+            };
             format!("{state} <unnamed>")
         }
         "running" => format!("Program running: {}", arm.motion.is_some()),
@@ -90,7 +94,9 @@ pub(crate) fn reply(arm: &mut ArmState, command: &str, now: Instant) -> String {
 }
 
 pub(crate) fn serve(stream: TcpStream, arm: Arc<Mutex<ArmState>>, stop: Arc<AtomicBool>) {
-    stream.set_read_timeout(Some(Duration::from_millis(50))).ok();
+    stream
+        .set_read_timeout(Some(Duration::from_millis(50)))
+        .ok();
     let Ok(mut writer) = stream.try_clone() else {
         return;
     };

@@ -69,7 +69,10 @@ impl Default for UrSimConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum UrSimError {
     #[error("the UR5e simulator binds loopback addresses only; {field} = {addr} is not one")]
-    NotLoopback { field: &'static str, addr: SocketAddr },
+    NotLoopback {
+        field: &'static str,
+        addr: SocketAddr,
+    },
     #[error("cannot bind the simulator's {what} port {addr}: {source}")]
     Bind {
         what: &'static str,
@@ -93,9 +96,10 @@ impl Server {
     ) -> Result<Self, UrSimError> {
         let listener =
             TcpListener::bind(addr).map_err(|source| UrSimError::Bind { what, addr, source })?;
-        let addr = listener
-            .local_addr()
-            .map_err(|source| UrSimError::Bind { what, addr, source })?;
+        let addr =
+            listener
+                .local_addr()
+                .map_err(|source| UrSimError::Bind { what, addr, source })?;
         listener.set_nonblocking(true).ok();
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
@@ -225,7 +229,10 @@ impl UrSim {
 
     /// The arm's state (pose, modes, moves started, registers).
     pub fn arm(&self) -> ArmState {
-        self.arm.lock().map(|a| a.clone()).unwrap_or_else(|p| p.into_inner().clone())
+        self.arm
+            .lock()
+            .map(|a| a.clone())
+            .unwrap_or_else(|p| p.into_inner().clone())
     }
 
     /// Changes the faults in flight.
@@ -259,7 +266,9 @@ impl UrSim {
 
 /// The script port: statements run as they arrive; ignored in Local mode (C, fact 9).
 fn serve_script(mut stream: TcpStream, arm: Arc<Mutex<ArmState>>, stop: Arc<AtomicBool>) {
-    stream.set_read_timeout(Some(Duration::from_millis(50))).ok();
+    stream
+        .set_read_timeout(Some(Duration::from_millis(50)))
+        .ok();
     let mut pending = String::new();
     let mut buf = [0u8; 4096];
     while !stop.load(Ordering::Relaxed) {

@@ -3,18 +3,22 @@
 //! holds them), `S`/`P`, and data packages at the recipe rate stamped with the controller clock.
 //! A client that stops reading is dropped after 10 s, as the controller does.
 
-use std::io::{Read as _, Write as _};
+use std::io::Read as _;
 use std::net::TcpStream;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use super::state::ArmState;
 use super::Faults;
+use super::state::ArmState;
+use crate::netio::{is_would_block, sleep_until, write_all_within};
 use crate::signal::Rng;
 use crate::ur::rtde::codec::{
     ClientMessage, FieldType, PacketReader, Recipe, RobotMessage, RtdeType, Value,
 };
+
+/// A client that reads nothing for this long is dropped, as the controller does.
+const CLIENT_READ_LIMIT: Duration = Duration::from_secs(10);
 
 /// The controller's version the simulator reports.
 pub const URCONTROL_VERSION: (u32, u32, u32, u32) = (5, 11, 1, 108_318);
@@ -85,7 +89,9 @@ pub(crate) fn serve(
     stop: Arc<AtomicBool>,
 ) {
     stream.set_nodelay(true).ok();
-    stream.set_write_timeout(Some(Duration::from_secs(10))).ok();
+    if stream.set_nonblocking(true).is_err() {
+        return;
+    }
     let mut reader = PacketReader::default();
     let mut protocol = 1u16;
     let mut outputs: Option<(Recipe, f64)> = None;
@@ -103,19 +109,28 @@ pub(crate) fn serve(
                 let c = first_tick_controller_s + tick as f64 * period;
                 let host_s = arm.lock().map(|a| controller_to_host(&a, c)).unwrap_or(0.0);
                 let boot = arm.lock().map(|a| a.boot).unwrap_or(now);
-                (Some(boot + Duration::from_secs_f64(host_s.max(0.0))), period)
+                (
+                    Some(boot + Duration::from_secs_f64(host_s.max(0.0))),
+                    period,
+                )
             }
             _ => (None, 0.0),
         };
-        let wait = next_send
-            .map_or(Duration::from_millis(20), |t| t.saturating_duration_since(now))
-            .clamp(Duration::from_micros(100), Duration::from_millis(20));
-        stream.set_read_timeout(Some(wait)).ok();
-        match stream.read(&mut buf) {
-            Ok(0) => return,
-            Ok(n) => reader.feed(&buf[..n]),
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
-            Err(_) => return,
+        let _ = now;
+        let mut got_input = false;
+        loop {
+            match stream.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => {
+                    reader.feed(&buf[..n]);
+                    got_input = true;
+                }
+                Err(e) if is_would_block(&e) => break,
+                Err(_) => return,
+            }
+        }
+        if !got_input && next_send.is_none_or(|t| Instant::now() < t) {
+            sleep_until(next_send, Duration::from_millis(2));
         }
         loop {
             let packet = match reader.next_packet() {
@@ -158,7 +173,11 @@ pub(crate) fn serve(
                             _ => None,
                         })
                         .collect();
-                    let f = if protocol >= 2 { frequency_hz } else { MAX_FREQUENCY_HZ };
+                    let f = if protocol >= 2 {
+                        frequency_hz
+                    } else {
+                        MAX_FREQUENCY_HZ
+                    };
                     if let Some(types) = all_known
                         && f > 0.0
                         && f <= MAX_FREQUENCY_HZ
@@ -178,11 +197,12 @@ pub(crate) fn serve(
                     })
                 }
                 ClientMessage::SetupInputs { names } => {
-                    let fieldbus = faults.lock().map(|f| f.fieldbus_holds_registers).unwrap_or(false);
-                    let types: Vec<FieldType> = names
-                        .iter()
-                        .map(|n| input_type(n, fieldbus))
-                        .collect();
+                    let fieldbus = faults
+                        .lock()
+                        .map(|f| f.fieldbus_holds_registers)
+                        .unwrap_or(false);
+                    let types: Vec<FieldType> =
+                        names.iter().map(|n| input_type(n, fieldbus)).collect();
                     let id = inputs.len() as u8 + 1;
                     let known: Option<Vec<RtdeType>> = types
                         .iter()
@@ -199,7 +219,11 @@ pub(crate) fn serve(
                         });
                     }
                     Some(RobotMessage::SetupReply {
-                        recipe_id: if types.iter().all(|t| matches!(t, FieldType::Type(_))) { id } else { 0 },
+                        recipe_id: if types.iter().all(|t| matches!(t, FieldType::Type(_))) {
+                            id
+                        } else {
+                            0
+                        },
                         types,
                     })
                 }
@@ -235,7 +259,7 @@ pub(crate) fn serve(
             };
             if let Some(reply) = reply
                 && let Ok(bytes) = reply.encode(protocol)
-                && stream.write_all(&bytes).is_err()
+                && write_all_within(&mut stream, &bytes, CLIENT_READ_LIMIT).is_err()
             {
                 return;
             }
@@ -250,7 +274,12 @@ pub(crate) fn serve(
         tick += 1;
         let (stalled, jitter_s) = faults
             .lock()
-            .map(|f| (f.stall_until.is_some_and(|t| Instant::now() < t), f.jitter_s))
+            .map(|f| {
+                (
+                    f.stall_until.is_some_and(|t| Instant::now() < t),
+                    f.jitter_s,
+                )
+            })
             .unwrap_or((false, 0.0));
         if stalled {
             continue;
@@ -280,7 +309,7 @@ pub(crate) fn serve(
         };
         match message.encode(protocol) {
             Ok(bytes) => {
-                if stream.write_all(&bytes).is_err() {
+                if write_all_within(&mut stream, &bytes, CLIENT_READ_LIMIT).is_err() {
                     // Unread for 10 s, or gone: the controller drops the client.
                     return;
                 }
@@ -295,7 +324,10 @@ fn controller_to_host(a: &ArmState, controller_s: f64) -> f64 {
 }
 
 fn input_type(name: &str, fieldbus_holds_low_registers: bool) -> FieldType {
-    let register = |prefix: &str| name.strip_prefix(prefix).and_then(|i| i.parse::<usize>().ok());
+    let register = |prefix: &str| {
+        name.strip_prefix(prefix)
+            .and_then(|i| i.parse::<usize>().ok())
+    };
     let (index, ty) = if let Some(i) = register("input_int_register_") {
         (i, RtdeType::Int32)
     } else if let Some(i) = register("input_double_register_") {

@@ -20,7 +20,11 @@ pub enum Statement {
 }
 
 fn args_of<'a>(line: &'a str, name: &str) -> Option<&'a str> {
-    let rest = line.trim().strip_prefix(name)?.trim_start().strip_prefix('(')?;
+    let rest = line
+        .trim()
+        .strip_prefix(name)?
+        .trim_start()
+        .strip_prefix('(')?;
     rest.rfind(')').map(|end| &rest[..end])
 }
 
@@ -70,9 +74,9 @@ mod tests {
     #[test]
     fn the_planner_s_statements_parse() {
         assert_eq!(
-            parse_line("movel(p[0.1,-0.2,0.3,0,3.1416,0], a=1.0000, v=0.2500)"),
+            parse_line("movel(p[0.1,-0.2,0.3,0,3.0,0], a=1.0000, v=0.2500)"),
             Some(Statement::Movel {
-                pose: [0.1, -0.2, 0.3, 0.0, 3.1416, 0.0],
+                pose: [0.1, -0.2, 0.3, 0.0, 3.0, 0.0],
                 accel_m_per_s2: 1.0,
                 speed_m_per_s: 0.25
             })

@@ -22,7 +22,10 @@ pub struct LinearMove {
 
 impl LinearMove {
     fn length_m(&self) -> f64 {
-        (0..3).map(|i| (self.to[i] - self.from[i]).powi(2)).sum::<f64>().sqrt()
+        (0..3)
+            .map(|i| (self.to[i] - self.from[i]).powi(2))
+            .sum::<f64>()
+            .sqrt()
     }
 
     /// Peak speed, ramp time and total time.
@@ -65,11 +68,11 @@ impl LinearMove {
         let f = s / l;
         let mut pose = self.from;
         let mut twist = [0.0; 6];
-        for i in 0..6 {
-            pose[i] = self.from[i] + f * (self.to[i] - self.from[i]);
+        for (i, p) in pose.iter_mut().enumerate() {
+            *p = self.from[i] + f * (self.to[i] - self.from[i]);
         }
-        for i in 0..3 {
-            twist[i] = speed * (self.to[i] - self.from[i]) / l;
+        for (i, t) in twist.iter_mut().take(3).enumerate() {
+            *t = speed * (self.to[i] - self.from[i]) / l;
         }
         (pose, twist)
     }

@@ -1,0 +1,374 @@
+//! The [`Robot`] trait and [`UrRobot`], its implementation over the Dashboard, the secondary
+//! script port (30002, C5 option 1) and RTDE.
+//!
+//! A row is driven in two moves: a `movel` to the row's start, then a small program that arms
+//! the RTDE watchdog on `input_int_register_24` (at least 10 Hz, action "stop") and runs the
+//! row's `movel`. While a row runs, the client writes an incrementing counter to that register
+//! every 50 ms, so the robot stops by itself if mmnormd dies. A row is confirmed finished through
+//! RTDE: `runtime_state` back to STOPPED after PLAYING, and the pose at the target. A safety stop
+//! in the stream (protective stop, safeguard stop, e-stop) ends the row at the first package
+//! that shows it, and nothing here ever unlocks it.
+
+use std::io::Write as _;
+use std::net::{SocketAddr, TcpStream};
+use std::time::{Duration, Instant};
+
+use super::dashboard::{DashboardClient, DashboardError, RobotMode, SafetyStatus};
+use super::motion::{Row, ScanSpec};
+use super::rtde::{RtdeClient, RtdeConfig, RtdeError, RtdeEvent, Sample, Value};
+
+/// Why the robot could not do what was asked.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    #[error(transparent)]
+    Dashboard(#[from] DashboardError),
+    #[error(transparent)]
+    Rtde(#[from] RtdeError),
+    #[error("script port {addr}: {source}")]
+    Script {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{what} did not finish within {waited_s:.1} s")]
+    Timeout { what: String, waited_s: f64 },
+    #[error("the RTDE output recipe lacks `{0}`, which driving rows needs")]
+    MissingField(&'static str),
+    #[error("the robot is not ready: robot mode {mode}, safety {safety}")]
+    NotReady { mode: String, safety: String },
+}
+
+/// What `mmnormd robot status` shows.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RobotStatus {
+    pub robot_mode: RobotMode,
+    pub safety: SafetyStatus,
+    pub remote_control: bool,
+    pub tcp_pose: Option<[f64; 6]>,
+}
+
+/// How a row ended.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum RowOutcome {
+    Completed,
+    /// A safety stop appeared in the stream; the scan must pause. It is never unlocked here.
+    SafetyStop {
+        safety: SafetyStatus,
+        /// Controller time of the first package that showed it.
+        at_controller_s: Option<f64>,
+        /// From that package's arrival to the decision to pause, milliseconds.
+        decided_after_ms: f64,
+    },
+}
+
+/// One driven row: its RTDE samples and how it ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowRecord {
+    pub index: usize,
+    pub samples: Vec<Sample>,
+    pub outcome: RowOutcome,
+    /// The constant-velocity stretch along x (from the plan).
+    pub usable_x_m: (f64, f64),
+    /// RTDE gaps (stalls, reconnects) during the row.
+    pub gaps: usize,
+}
+
+/// An arm that drives raster rows.
+pub trait Robot {
+    fn status(&mut self) -> Result<RobotStatus, RobotError>;
+    /// Drives one row: to its start, then along it at the spec's speed.
+    fn drive_row(&mut self, row: &Row, spec: &ScanSpec) -> Result<RowRecord, RobotError>;
+    /// Stops motion now.
+    fn stop(&mut self) -> Result<(), RobotError>;
+}
+
+/// Addresses of a UR controller.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UrAddresses {
+    pub dashboard: SocketAddr,
+    pub script: SocketAddr,
+    pub rtde: RtdeConfig,
+}
+
+/// The real arm (or the simulator) over TCP.
+pub struct UrRobot {
+    dashboard: DashboardClient,
+    script: TcpStream,
+    script_addr: SocketAddr,
+    rtde: RtdeClient,
+    latest: Option<Sample>,
+    gaps: usize,
+    watchdog_counter: i32,
+    at: FieldIndex,
+}
+
+struct FieldIndex {
+    timestamp: usize,
+    pose: usize,
+    runtime: usize,
+    safety: usize,
+}
+
+/// Pose within this distance of a target counts as at the target, metres.
+const AT_TARGET_M: f64 = 0.0005;
+
+fn pose_of(s: &Sample, i: usize) -> Option<[f64; 6]> {
+    match s.values.get(i) {
+        Some(Value::Vector6d(p)) => Some(*p),
+        _ => None,
+    }
+}
+
+fn int_of(s: &Sample, i: usize) -> Option<i64> {
+    match s.values.get(i) {
+        Some(Value::Int32(v)) => Some(i64::from(*v)),
+        Some(Value::Uint32(v)) => Some(i64::from(*v)),
+        _ => None,
+    }
+}
+
+fn distance_m(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+impl UrRobot {
+    /// Connects the Dashboard, the script port and RTDE, and waits for the first package.
+    pub fn connect(addresses: &UrAddresses) -> Result<Self, RobotError> {
+        let timeout = addresses.rtde.connect_timeout;
+        let dashboard = DashboardClient::connect(addresses.dashboard, timeout)?;
+        let script = TcpStream::connect_timeout(&addresses.script, timeout).map_err(|source| {
+            RobotError::Script {
+                addr: addresses.script,
+                source,
+            }
+        })?;
+        let find = |name: &'static str| {
+            addresses
+                .rtde
+                .outputs
+                .iter()
+                .position(|n| n == name)
+                .ok_or(RobotError::MissingField(name))
+        };
+        let at = FieldIndex {
+            timestamp: find("timestamp")?,
+            pose: find("actual_TCP_pose")?,
+            runtime: find("runtime_state")?,
+            safety: find("safety_mode")?,
+        };
+        let rtde = RtdeClient::spawn(addresses.rtde.clone());
+        let mut robot = Self {
+            dashboard,
+            script,
+            script_addr: addresses.script,
+            rtde,
+            latest: None,
+            gaps: 0,
+            watchdog_counter: 0,
+            at,
+        };
+        let start = Instant::now();
+        while robot.latest.is_none() {
+            robot.pump(Duration::from_millis(50), &mut Vec::new())?;
+            if start.elapsed() > timeout * 2 {
+                return Err(RobotError::Timeout {
+                    what: "the first RTDE package".into(),
+                    waited_s: start.elapsed().as_secs_f64(),
+                });
+            }
+        }
+        Ok(robot)
+    }
+
+    /// The RTDE client (for its epoch and field names).
+    pub fn rtde(&self) -> &RtdeClient {
+        &self.rtde
+    }
+
+    /// Waits up to `wait` for the next event, then takes every event already queued, appending
+    /// samples to `into`. Returns as soon as something arrived, so callers see each package
+    /// within microseconds of its arrival.
+    fn pump(&mut self, wait: Duration, into: &mut Vec<Sample>) -> Result<(), RobotError> {
+        let mut first = true;
+        loop {
+            let event = if first {
+                first = false;
+                self.rtde.events().recv_timeout(wait).ok()
+            } else {
+                self.rtde.events().try_recv().ok()
+            };
+            let Some(event) = event else {
+                return Ok(());
+            };
+            match event {
+                RtdeEvent::Sample(s) => {
+                    into.push(s.clone());
+                    self.latest = Some(s);
+                }
+                RtdeEvent::Gap { reason, .. } => {
+                    tracing::warn!("RTDE gap: {reason}");
+                    self.gaps += 1;
+                }
+                RtdeEvent::Failed(e) => return Err(e.into()),
+                RtdeEvent::Connected { .. } | RtdeEvent::Text { .. } => {}
+            }
+        }
+    }
+
+    fn send_script(&mut self, text: &str) -> Result<(), RobotError> {
+        self.script
+            .write_all(text.as_bytes())
+            .map_err(|source| RobotError::Script {
+                addr: self.script_addr,
+                source,
+            })
+    }
+
+    fn kick_watchdog(&mut self) {
+        self.watchdog_counter = self.watchdog_counter.wrapping_add(1);
+        self.rtde
+            .send_inputs(vec![Value::Int32(self.watchdog_counter)]);
+    }
+
+    /// Sends `script`, then follows RTDE until the move reaches `target` and stops, a safety stop
+    /// shows, or `timeout` passes.
+    fn run_move(
+        &mut self,
+        script: &str,
+        target: &[f64; 6],
+        timeout: Duration,
+        samples: &mut Vec<Sample>,
+    ) -> Result<RowOutcome, RobotError> {
+        let first = samples.len();
+        self.kick_watchdog();
+        self.send_script(script)?;
+        let start = Instant::now();
+        let mut last_kick = Instant::now();
+        let mut seen_playing = false;
+        let mut checked = first;
+        loop {
+            self.pump(Duration::from_millis(10), samples)?;
+            if last_kick.elapsed() >= Duration::from_millis(50) {
+                self.kick_watchdog();
+                last_kick = Instant::now();
+            }
+            for (k, s) in samples.iter().enumerate().skip(checked) {
+                let safety = int_of(s, self.at.safety)
+                    .and_then(|c| SafetyStatus::from_code(c as i32))
+                    .unwrap_or(SafetyStatus::Undefined);
+                if safety.is_stop() {
+                    let decided_s = self.rtde.epoch().elapsed().as_secs_f64();
+                    let outcome = RowOutcome::SafetyStop {
+                        safety,
+                        at_controller_s: s.controller_s,
+                        decided_after_ms: (decided_s - s.host_s) * 1e3,
+                    };
+                    // The row's data ends at the package that showed the stop.
+                    samples.truncate(k + 1);
+                    return Ok(outcome);
+                }
+                let runtime = int_of(s, self.at.runtime).unwrap_or(0);
+                seen_playing |= runtime == 2;
+                let at_target =
+                    pose_of(s, self.at.pose).is_some_and(|p| distance_m(&p, target) < AT_TARGET_M);
+                // PLAYING can only be missed by a move shorter than a period; allow for it after
+                // 200 ms.
+                let settled = seen_playing || start.elapsed() > Duration::from_millis(200);
+                if at_target && runtime == 1 && settled {
+                    return Ok(RowOutcome::Completed);
+                }
+            }
+            checked = samples.len();
+            if start.elapsed() > timeout {
+                return Err(RobotError::Timeout {
+                    what: format!("the move to {target:?}"),
+                    waited_s: start.elapsed().as_secs_f64(),
+                });
+            }
+        }
+    }
+}
+
+impl Robot for UrRobot {
+    fn status(&mut self) -> Result<RobotStatus, RobotError> {
+        self.pump(Duration::from_millis(20), &mut Vec::new())?;
+        Ok(RobotStatus {
+            robot_mode: self.dashboard.robot_mode()?,
+            safety: self.dashboard.safety_status()?,
+            remote_control: self.dashboard.is_in_remote_control()?,
+            tcp_pose: self.latest.as_ref().and_then(|s| pose_of(s, self.at.pose)),
+        })
+    }
+
+    fn drive_row(&mut self, row: &Row, spec: &ScanSpec) -> Result<RowRecord, RobotError> {
+        let status = self.status()?;
+        if status.robot_mode != RobotMode::Running || status.safety.is_stop() {
+            return Err(RobotError::NotReady {
+                mode: status.robot_mode.name().into(),
+                safety: status.safety.name().into(),
+            });
+        }
+        let gaps_before = self.gaps;
+        let p = row.start_pose;
+        let approach = format!(
+            "movel(p[{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}], a={:.4}, v={:.4})\n",
+            p[0], p[1], p[2], p[3], p[4], p[5], spec.accel_m_per_s2, spec.speed_m_per_s
+        );
+        let here = self
+            .latest
+            .as_ref()
+            .and_then(|s| pose_of(s, self.at.pose))
+            .unwrap_or(p);
+        let mut scratch = Vec::new();
+        if distance_m(&here, &p) >= AT_TARGET_M {
+            let t = Duration::from_secs_f64(
+                distance_m(&here, &p) / spec.speed_m_per_s
+                    + spec.speed_m_per_s / spec.accel_m_per_s2
+                    + 5.0,
+            );
+            if let outcome @ RowOutcome::SafetyStop { .. } =
+                self.run_move(&approach, &p, t, &mut scratch)?
+            {
+                return Ok(RowRecord {
+                    index: row.index,
+                    samples: Vec::new(),
+                    outcome,
+                    usable_x_m: row.usable_x_m,
+                    gaps: self.gaps - gaps_before,
+                });
+            }
+        }
+        let program = format!(
+            "def mmnorm_row_{}():\n  rtde_set_watchdog(\"input_int_register_24\", 10, \"stop\")\n  {}end\n",
+            row.index,
+            row.urscript(spec.speed_m_per_s, spec.accel_m_per_s2)
+        );
+        let mut samples = Vec::new();
+        let timeout = Duration::from_secs_f64(row.duration_s * 1.5 + 5.0);
+        let outcome = self.run_move(&program, &row.end_pose, timeout, &mut samples)?;
+        Ok(RowRecord {
+            index: row.index,
+            samples,
+            outcome,
+            usable_x_m: row.usable_x_m,
+            gaps: self.gaps - gaps_before,
+        })
+    }
+
+    fn stop(&mut self) -> Result<(), RobotError> {
+        self.send_script("stopl(2.0)\n")?;
+        Ok(())
+    }
+}
+
+impl UrRobot {
+    /// The index of the `timestamp` field in samples.
+    pub fn timestamp_index(&self) -> usize {
+        self.at.timestamp
+    }
+
+    /// The index of `actual_TCP_pose` in samples.
+    pub fn pose_index(&self) -> usize {
+        self.at.pose
+    }
+}

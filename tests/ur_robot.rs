@@ -1,0 +1,363 @@
+//! The UR5e client against the UR5e simulator, through real TCP on loopback. Each test prints
+//! the figure it checks.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use mmnormd::ur::clock::{ClockConfig, ClockMapper};
+use mmnormd::ur::dashboard::{DashboardClient, DashboardError, SafetyStatus};
+use mmnormd::ur::motion::{ScanSpec, plan_raster};
+use mmnormd::ur::robot::{Robot, RobotError, RowOutcome, UrAddresses, UrRobot};
+use mmnormd::ur::rtde::{RtdeClient, RtdeConfig, RtdeEvent, Value};
+use mmnormd::ur::sim::{Faults, UrSim, UrSimConfig};
+
+const LAMBDA_M: f64 = 0.003_868;
+
+fn any_port() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 0))
+}
+
+fn sim(config: UrSimConfig, faults: Faults) -> UrSim {
+    let config = UrSimConfig {
+        rtde: any_port(),
+        dashboard: any_port(),
+        script: any_port(),
+        ..config
+    };
+    UrSim::spawn(&config, faults).unwrap()
+}
+
+fn addresses(sim: &UrSim, stall_periods: f64) -> UrAddresses {
+    let mut rtde = RtdeConfig::e_series(sim.rtde_addr());
+    rtde.stall_periods = stall_periods;
+    UrAddresses {
+        dashboard: sim.dashboard_addr(),
+        script: sim.script_addr(),
+        rtde,
+    }
+}
+
+fn small_spec() -> ScanSpec {
+    ScanSpec {
+        centre_in_base_m: [0.45, -0.20, 0.35],
+        width_m: 0.10,
+        height_m: 0.015,
+        row_spacing_m: 0.005,
+        speed_m_per_s: 0.1,
+        accel_m_per_s2: 1.0,
+        ..ScanSpec::default()
+    }
+}
+
+#[test]
+fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    // A generous stall limit: this test is about completeness, not stall detection, and must not
+    // reconnect because a loaded CI machine scheduled a thread late.
+    let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
+    let spec = small_spec();
+    let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
+    let (ts, pose) = (robot.timestamp_index(), robot.pose_index());
+    let mut total = 0;
+    for row in &plan.rows {
+        let record = robot.drive_row(row, &spec).unwrap();
+        assert_eq!(record.outcome, RowOutcome::Completed);
+        assert_eq!(record.gaps, 0);
+        let times: Vec<f64> = record
+            .samples
+            .iter()
+            .map(|s| match s.values[ts] {
+                Value::Double(t) => t,
+                _ => f64::NAN,
+            })
+            .collect();
+        let missing = times
+            .windows(2)
+            .filter(|w| (w[1] - w[0] - 0.002).abs() > 1e-9)
+            .count();
+        assert_eq!(missing, 0, "row {}: packages missing", row.index);
+        let poses: Vec<[f64; 6]> = record
+            .samples
+            .iter()
+            .filter_map(|s| match s.values[pose] {
+                Value::Vector6d(p) => Some(p),
+                _ => None,
+            })
+            .collect();
+        // In order: each row at its own y, driven in its own direction.
+        assert!(
+            poses
+                .iter()
+                .all(|p| (p[1] - row.start_pose[1]).abs() < 1e-9)
+        );
+        let dx = poses.last().unwrap()[0] - poses[0][0];
+        assert_eq!(dx.signum() as i8, row.direction);
+        // The usable segment: constant speed everywhere inside it.
+        let (lo, hi) = record.usable_x_m;
+        let inside: Vec<f64> = poses
+            .windows(2)
+            .filter(|w| w[0][0] > lo && w[0][0] < hi && w[1][0] > lo && w[1][0] < hi)
+            .map(|w| (w[1][0] - w[0][0]).abs() / 0.002)
+            .collect();
+        let worst = inside
+            .iter()
+            .fold(0.0f64, |m, v| m.max((v - spec.speed_m_per_s).abs()));
+        assert!(worst < 1e-6, "row {}: speed off by {worst}", row.index);
+        println!(
+            "row {} ({:+}): {} packages at 500 Hz, 0 missing; usable x {:.3}..{:.3} m at {:.3} m/s ({} packages inside)",
+            row.index,
+            row.direction,
+            times.len(),
+            lo,
+            hi,
+            spec.speed_m_per_s,
+            inside.len() + 1
+        );
+        total += times.len();
+    }
+    let arm = sim.arm();
+    // Each row: an approach to its start (the next row is a row spacing away), then the row.
+    assert_eq!(arm.moves_started, 2 * plan.rows.len() as u64);
+    println!(
+        "raster: {} rows, {total} packages, {} moves",
+        plan.rows.len(),
+        arm.moves_started
+    );
+}
+
+#[test]
+fn an_over_speed_spec_is_refused_before_any_motion() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let spec = ScanSpec {
+        speed_m_per_s: 0.4,
+        ..small_spec()
+    };
+    let err = plan_raster(&spec, LAMBDA_M, 0.003).unwrap_err();
+    println!(
+        "over-speed: {err}; moves started: {}",
+        sim.arm().moves_started
+    );
+    assert_eq!(sim.arm().moves_started, 0);
+}
+
+fn next_event(
+    client: &RtdeClient,
+    wait: Duration,
+    want: impl Fn(&RtdeEvent) -> bool,
+) -> Option<RtdeEvent> {
+    let until = Instant::now() + wait;
+    while let Ok(e) = client
+        .events()
+        .recv_timeout(until.saturating_duration_since(Instant::now()))
+    {
+        if want(&e) {
+            return Some(e);
+        }
+    }
+    None
+}
+
+#[test]
+fn a_stall_is_flagged_within_three_periods() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    })
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    sim.set_faults(|f| f.stall_until = Some(Instant::now() + Duration::from_millis(300)));
+    let mut last_sample = 0.0;
+    let gap_at = loop {
+        match client
+            .events()
+            .recv_timeout(Duration::from_secs(2))
+            .unwrap()
+        {
+            RtdeEvent::Sample(s) => last_sample = s.host_s,
+            RtdeEvent::Gap {
+                at_host_s, reason, ..
+            } => {
+                println!("stall: {reason}");
+                break at_host_s;
+            }
+            _ => {}
+        }
+    };
+    let after_ms = (gap_at - last_sample) * 1e3;
+    println!(
+        "stall flagged {after_ms:.2} ms after the last package: {:.2} periods after the first missing one",
+        (after_ms - 2.0) / 2.0
+    );
+    assert!(after_ms <= 2.0 + 3.0 * 2.0 + 1.0, "{after_ms} ms");
+    let reconnected = next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Connected { segment: 2, .. })
+    });
+    assert!(
+        reconnected.is_some(),
+        "the client reconnects after the stall"
+    );
+}
+
+#[test]
+fn a_killed_and_restarted_server_is_rejoined() {
+    let mut sim = sim(UrSimConfig::default(), Faults::default());
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    })
+    .unwrap();
+    let killed = Instant::now();
+    sim.kill_rtde();
+    next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Gap { .. })
+    })
+    .unwrap();
+    let disconnect_ms = killed.elapsed().as_secs_f64() * 1e3;
+    std::thread::sleep(Duration::from_millis(500));
+    let restarted = Instant::now();
+    sim.restart_rtde().unwrap();
+    next_event(&client, Duration::from_secs(12), |e| {
+        matches!(e, RtdeEvent::Connected { .. })
+    })
+    .unwrap();
+    let running_s = restarted.elapsed().as_secs_f64();
+    let connected = Instant::now();
+    let first = next_event(&client, Duration::from_secs(1), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    });
+    let first_ms = connected.elapsed().as_secs_f64() * 1e3;
+    println!(
+        "kill/restart: disconnect seen after {disconnect_ms:.1} ms, running {running_s:.2} s after the restart, first package {first_ms:.1} ms later"
+    );
+    assert!(disconnect_ms < 1000.0);
+    assert!(running_s < 10.0);
+    assert!(first.is_some() && first_ms < 100.0);
+    if let Some(RtdeEvent::Sample(s)) = first {
+        assert_eq!(s.segment, 2, "the new connection is a new segment");
+    }
+}
+
+#[test]
+fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
+    let config = UrSimConfig {
+        protective_stop: Some((1, 0.4)),
+        ..UrSimConfig::default()
+    };
+    let sim = sim(config, Faults::default());
+    let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
+    let spec = small_spec();
+    let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
+    // Move 0 is the approach to row 0; move 1 is row 0 itself.
+    let record = robot.drive_row(&plan.rows[0], &spec).unwrap();
+    let RowOutcome::SafetyStop {
+        safety,
+        at_controller_s,
+        decided_after_ms,
+    } = record.outcome.clone()
+    else {
+        panic!("expected a safety stop, got {:?}", record.outcome);
+    };
+    assert_eq!(safety, SafetyStatus::ProtectiveStop);
+    let ts = robot.timestamp_index();
+    let stamps: Vec<f64> = record
+        .samples
+        .iter()
+        .map(|s| match s.values[ts] {
+            Value::Double(t) => t,
+            _ => f64::NAN,
+        })
+        .collect();
+    let stop_sample = stamps
+        .iter()
+        .position(|t| Some(*t) == at_controller_s)
+        .unwrap();
+    println!(
+        "protective stop: the row paused at the first package showing it ({stop_sample} packages into the row), {decided_after_ms:.3} ms after it arrived (one period = 2 ms); no unlock sent"
+    );
+    assert_eq!(stop_sample, record.samples.len() - 1);
+    assert!(decided_after_ms < 2.0);
+    let mut dashboard =
+        DashboardClient::connect(sim.dashboard_addr(), Duration::from_secs(2)).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(
+        dashboard.safety_status().unwrap(),
+        SafetyStatus::ProtectiveStop
+    );
+    assert!(matches!(
+        robot.drive_row(&plan.rows[1], &spec),
+        Err(RobotError::NotReady { .. })
+    ));
+}
+
+#[test]
+fn local_mode_is_a_clear_error() {
+    let config = UrSimConfig {
+        remote_control: false,
+        ..UrSimConfig::default()
+    };
+    let sim = sim(config, Faults::default());
+    let mut dashboard =
+        DashboardClient::connect(sim.dashboard_addr(), Duration::from_secs(2)).unwrap();
+    assert!(!dashboard.is_in_remote_control().unwrap());
+    let err = dashboard.stop().unwrap_err();
+    assert!(matches!(err, DashboardError::LocalMode));
+    assert!(
+        err.to_string()
+            .contains("switch the robot to Remote Control")
+    );
+}
+
+#[test]
+fn the_controller_clock_maps_within_0_3_ms_under_drift_and_jitter() {
+    for ppm in [50.0, -50.0] {
+        let config = UrSimConfig {
+            clock_offset_s: 1000.0,
+            clock_drift_ppm: ppm,
+            ..UrSimConfig::default()
+        };
+        let faults = Faults {
+            seed: 3,
+            jitter_s: 0.001,
+            ..Faults::default()
+        };
+        let sim = sim(config, faults);
+        let boot = sim.arm().boot;
+        let mut rtde = RtdeConfig::e_series(sim.rtde_addr());
+        rtde.stall_periods = 50.0;
+        let client = RtdeClient::spawn(rtde);
+        let offset_s = boot.saturating_duration_since(client.epoch()).as_secs_f64()
+            - client.epoch().saturating_duration_since(boot).as_secs_f64();
+        let mut mapper = ClockMapper::new(ClockConfig::default());
+        let mut pairs = Vec::new();
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(6) {
+            if let Ok(RtdeEvent::Sample(s)) =
+                client.events().recv_timeout(Duration::from_millis(100))
+                && let Some(c) = s.controller_s
+            {
+                mapper.push(c, s.host_s);
+                if start.elapsed() > Duration::from_secs(2)
+                    && let Some(mapped) = mapper.host_time(c)
+                {
+                    // True host time of controller time c, on the client's clock.
+                    let truth = offset_s + (c - 1000.0) / (1.0 + ppm * 1e-6);
+                    pairs.push(mapped - truth);
+                }
+            }
+        }
+        let mut sorted = pairs.clone();
+        sorted.sort_by(f64::total_cmp);
+        let floor = sorted[sorted.len() / 2];
+        let worst = pairs.iter().fold(0.0f64, |m, e| m.max((e - floor).abs()));
+        let fit = mapper.fit().unwrap();
+        println!(
+            "clock over RTDE: {ppm:+} ppm, 1 ms jitter: fitted drift {:+.1} ppm, {} packages mapped, worst error {:.3} ms about the constant latency floor ({:.3} ms)",
+            -fit.drift * 1e6,
+            pairs.len(),
+            worst * 1e3,
+            floor * 1e3
+        );
+        assert!(worst < 0.3e-3, "{ppm} ppm: {worst}");
+    }
+}
