@@ -542,18 +542,14 @@ fn run(
 ) {
     let mut host_control: Option<SocketAddr> = None;
     let mut buf = vec![0u8; 2048];
+    // Nonblocking with sleeps: a socket timeout would round to the kernel tick (netio).
+    control.set_nonblocking(true).ok();
     while !stop.load(Ordering::Relaxed) {
-        let now = Instant::now();
-        let wait = core
-            .next_deadline()
-            .map_or(Duration::from_millis(20), |d| {
-                d.saturating_duration_since(now)
-            })
-            .clamp(Duration::from_micros(200), Duration::from_millis(2));
-        control.set_read_timeout(Some(wait)).ok();
-        if let Ok((n, from)) = control.recv_from(&mut buf) {
+        let mut idle = true;
+        while let Ok((n, from)) = control.recv_from(&mut buf) {
             host_control = Some(from);
             core.handle_command(&buf[..n], Instant::now());
+            idle = false;
         }
         while let Ok(msg) = triggers.try_recv() {
             match msg {
@@ -576,6 +572,9 @@ fn run(
         }
         if let Ok(mut s) = stats.lock() {
             *s = core.stats();
+        }
+        if idle {
+            crate::netio::sleep_until(core.next_deadline(), Duration::from_millis(1));
         }
     }
 }
