@@ -114,6 +114,11 @@ enum Command {
         #[command(subcommand)]
         which: CaptureCommand,
     },
+    /// Check the UR5e before a scan.
+    Robot {
+        #[command(subcommand)]
+        which: RobotCommand,
+    },
     /// Run simulated devices on loopback addresses and a PTY.
     Sim {
         #[command(subcommand)]
@@ -133,6 +138,16 @@ enum SimCommand {
     /// The IWR1443 CLI simulator on a PTY and the DCA1000 simulator on loopback UDP, streaming
     /// the frames of the config's [sim] scene or capture directory, until Ctrl-C.
     Radar(cli::capture::SimRadarArgs),
+    /// A UR5e simulator: RTDE, Dashboard and script ports on 127.0.0.1, until Ctrl-C.
+    Robot(cli::robot::SimRobotArgs),
+}
+
+#[derive(Subcommand)]
+enum RobotCommand {
+    /// Robot mode, safety status, remote control and TCP pose.
+    Status(cli::robot::StatusArgs),
+    /// Record the RTDE outputs to CSV: one row per package, host receive time first.
+    Log(cli::robot::LogArgs),
 }
 
 #[derive(Subcommand)]
@@ -216,6 +231,15 @@ fn main() -> std::process::ExitCode {
         Command::Sim {
             which: SimCommand::Radar(a),
         } => cli::capture::sim_radar(a, args.quiet),
+        Command::Sim {
+            which: SimCommand::Robot(a),
+        } => cli::robot::sim_robot(a),
+        Command::Robot {
+            which: RobotCommand::Status(a),
+        } => cli::robot::status(a),
+        Command::Robot {
+            which: RobotCommand::Log(a),
+        } => cli::robot::log(a, args.quiet),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -361,3 +361,132 @@ fn the_controller_clock_maps_within_0_3_ms_under_drift_and_jitter() {
         assert!(worst < 0.3e-3, "{ppm} ppm: {worst}");
     }
 }
+
+#[test]
+fn refused_fields_are_named() {
+    let sim = sim(
+        UrSimConfig::default(),
+        Faults {
+            fieldbus_holds_registers: true,
+            ..Faults::default()
+        },
+    );
+    let mut config = RtdeConfig::e_series(sim.rtde_addr());
+    config.inputs = vec!["input_int_register_3".into()];
+    let client = RtdeClient::spawn(config);
+    let failed = next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Failed(_))
+    });
+    let Some(RtdeEvent::Failed(e)) = failed else {
+        panic!("expected a failure");
+    };
+    println!("IN_USE: {e}");
+    assert!(e.to_string().contains("`input_int_register_3`") && e.to_string().contains("IN_USE"));
+    let mut config = RtdeConfig::e_series(sim.rtde_addr());
+    config.outputs.push("actual_flux_capacitor".into());
+    let client = RtdeClient::spawn(config);
+    let Some(RtdeEvent::Failed(e)) = next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Failed(_))
+    }) else {
+        panic!("expected a failure");
+    };
+    println!("NOT_FOUND: {e}");
+    assert!(
+        e.to_string().contains("`actual_flux_capacitor`") && e.to_string().contains("NOT_FOUND")
+    );
+}
+
+#[test]
+fn pause_stops_the_stream_without_a_gap_and_start_resumes_it() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    })
+    .unwrap();
+    client.pause();
+    std::thread::sleep(Duration::from_millis(50));
+    while client.events().try_recv().is_ok() {}
+    let quiet = next_event(&client, Duration::from_millis(200), |_| true);
+    assert!(quiet.is_none(), "nothing while paused: {quiet:?}");
+    client.resume();
+    let again = next_event(&client, Duration::from_secs(1), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    });
+    assert!(matches!(again, Some(RtdeEvent::Sample(s)) if s.segment == 1));
+}
+
+#[test]
+fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let spec = small_spec();
+    let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
+    {
+        let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
+        robot.drive_row(&plan.rows[0], &spec).unwrap();
+        // Start row 1's approach and the row itself by hand, then die without kicking.
+        let row = &plan.rows[1];
+        let mut script = std::net::TcpStream::connect(sim.script_addr()).unwrap();
+        use std::io::Write as _;
+        let p = row.start_pose;
+        write!(
+            script,
+            "movel(p[{},{},{},{},{},{}], a=1.0, v=0.1)\n",
+            p[0], p[1], p[2], p[3], p[4], p[5]
+        )
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(600));
+        write!(
+            script,
+            "def r():\n  rtde_set_watchdog(\"input_int_register_24\", 10, \"stop\")\n  {}end\n",
+            row.urscript(0.1, 1.0)
+        )
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+        let a = sim.arm();
+        assert!(a.motion.is_some(), "the row is running");
+    }
+    let died = Instant::now();
+    let mut stopped_after = None;
+    while died.elapsed() < Duration::from_secs(2) {
+        if sim.arm().motion.is_none() {
+            stopped_after = Some(died.elapsed());
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let arm = sim.arm();
+    println!(
+        "watchdog: the arm stopped {:.0} ms after the client died (watchdog: 10 Hz, so at most 100 ms after the last kick; {} trip)",
+        stopped_after.map_or(f64::NAN, |d| d.as_secs_f64() * 1e3),
+        arm.watchdog_trips
+    );
+    assert_eq!(arm.watchdog_trips, 1);
+    assert!(stopped_after.is_some_and(|d| d < Duration::from_millis(200)));
+}
+
+#[test]
+fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("rtde.csv");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args(["-q", "robot", "log", "--host", "127.0.0.1", "--rtde-port"])
+        .arg(sim.rtde_addr().port().to_string())
+        .args(["--seconds", "1", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("robot log: {}", stdout.trim());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(&header[..3], ["host_time_s", "segment", "timestamp"]);
+    assert!(header.contains(&"actual_TCP_pose_5") && header.contains(&"output_int_register_24"));
+    let rows: Vec<&str> = lines.collect();
+    assert!(rows.len() > 400, "{} rows in 1 s at 500 Hz", rows.len());
+    assert!(rows.iter().all(|r| r.split(',').count() == header.len()));
+    assert!(stdout.contains(&format!("{} packages", rows.len())));
+}

@@ -112,7 +112,7 @@ pub fn sim_radar(args: SimRadarArgs, quiet: bool) -> Result<()> {
 }
 
 /// Blocks until SIGINT or SIGTERM.
-fn wait_for_stop_signal() -> Result<()> {
+pub fn wait_for_stop_signal() -> Result<()> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()

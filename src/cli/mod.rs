@@ -7,4 +7,5 @@ pub mod eval;
 pub mod inspect;
 pub mod profile;
 pub mod reconstruct;
+pub mod robot;
 pub mod simulate;

@@ -130,11 +130,18 @@ pub enum RtdeEvent {
     Failed(RtdeError),
 }
 
+/// What the caller asks of the client thread.
+enum Request {
+    Inputs(Vec<Value>),
+    Pause,
+    Start,
+}
+
 /// The running client.
 pub struct RtdeClient {
     epoch: Instant,
     events: Receiver<RtdeEvent>,
-    inputs: Sender<Vec<Value>>,
+    inputs: Sender<Request>,
     names: Vec<String>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -182,7 +189,17 @@ impl RtdeClient {
 
     /// Queues an input package (values in the order of the input recipe).
     pub fn send_inputs(&self, values: Vec<Value>) {
-        self.inputs.send(values).ok();
+        self.inputs.send(Request::Inputs(values)).ok();
+    }
+
+    /// Pauses the output stream (`P`); no stall is declared while paused.
+    pub fn pause(&self) {
+        self.inputs.send(Request::Pause).ok();
+    }
+
+    /// Resumes the output stream (`S`).
+    pub fn resume(&self) {
+        self.inputs.send(Request::Start).ok();
     }
 
     /// Stops the thread.
@@ -384,7 +401,7 @@ fn run(
     config: RtdeConfig,
     epoch: Instant,
     events: Sender<RtdeEvent>,
-    inputs: Receiver<Vec<Value>>,
+    inputs: Receiver<Request>,
     stop: Arc<AtomicBool>,
 ) {
     let period = Duration::from_secs_f64(1.0 / config.frequency_hz.max(1e-3));
@@ -445,12 +462,13 @@ fn read_loop(
     segment: u64,
     timestamp_at: Option<usize>,
     events: &Sender<RtdeEvent>,
-    inputs: &Receiver<Vec<Value>>,
+    inputs: &Receiver<Request>,
     stop: &AtomicBool,
     epoch: Instant,
 ) -> String {
     let mut buf = [0u8; 16384];
     let mut last_package = Instant::now();
+    let mut paused = false;
     let poll = (stall / 12).clamp(Duration::from_micros(200), Duration::from_millis(2));
     if s.stream.set_nonblocking(true).is_err() {
         return "cannot make the socket nonblocking".into();
@@ -459,21 +477,35 @@ fn read_loop(
         if stop.load(Ordering::Relaxed) {
             return "client stopped".into();
         }
-        while let Ok(values) = inputs.try_recv() {
-            if let Some(recipe) = &s.input {
-                let mut fields = Vec::new();
-                if recipe.encode_fields(&values, &mut fields).is_ok() {
-                    let m = ClientMessage::Data {
-                        recipe_id: recipe.id,
-                        fields,
-                    };
-                    let sent = m
-                        .encode(s.protocol)
-                        .map_err(|e| std::io::Error::other(e.to_string()))
-                        .and_then(|b| write_all_within(&mut s.stream, &b, Duration::from_secs(1)));
-                    if let Err(e) = sent {
-                        return format!("write failed: {e}");
-                    }
+        while let Ok(request) = inputs.try_recv() {
+            let message = match request {
+                Request::Inputs(values) => s.input.as_ref().and_then(|recipe| {
+                    let mut fields = Vec::new();
+                    recipe
+                        .encode_fields(&values, &mut fields)
+                        .ok()
+                        .map(|()| ClientMessage::Data {
+                            recipe_id: recipe.id,
+                            fields,
+                        })
+                }),
+                Request::Pause => {
+                    paused = true;
+                    Some(ClientMessage::Pause)
+                }
+                Request::Start => {
+                    paused = false;
+                    last_package = Instant::now();
+                    Some(ClientMessage::Start)
+                }
+            };
+            if let Some(m) = message {
+                let sent = m
+                    .encode(s.protocol)
+                    .map_err(|e| std::io::Error::other(e.to_string()))
+                    .and_then(|b| write_all_within(&mut s.stream, &b, Duration::from_secs(1)));
+                if let Err(e) = sent {
+                    return format!("write failed: {e}");
                 }
             }
         }
@@ -518,7 +550,7 @@ fn read_loop(
             Err(e) if is_timeout(&e) => std::thread::sleep(poll),
             Err(e) => return format!("read failed: {e}"),
         }
-        if last_package.elapsed() > stall {
+        if !paused && last_package.elapsed() > stall {
             return format!(
                 "stall: no package for {:.1} ms ({} periods at {} Hz)",
                 last_package.elapsed().as_secs_f64() * 1e3,

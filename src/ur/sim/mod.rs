@@ -227,12 +227,13 @@ impl UrSim {
         self.script.addr
     }
 
-    /// The arm's state (pose, modes, moves started, registers).
+    /// The arm's state now (pose, modes, moves started, registers). The state evolves in
+    /// time whether or not anyone watches: reading it advances it to the present.
     pub fn arm(&self) -> ArmState {
-        self.arm
-            .lock()
-            .map(|a| a.clone())
-            .unwrap_or_else(|p| p.into_inner().clone())
+        let mut a = self.arm.lock().unwrap_or_else(|p| p.into_inner());
+        let now_s = a.host_s(Instant::now());
+        a.advance(now_s);
+        a.clone()
     }
 
     /// Changes the faults in flight.

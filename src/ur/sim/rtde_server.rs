@@ -89,6 +89,10 @@ pub(crate) fn serve(
     stop: Arc<AtomicBool>,
 ) {
     stream.set_nodelay(true).ok();
+    // A modest send buffer, so a client that stops reading is noticed in seconds, not minutes.
+    socket2::SockRef::from(&stream)
+        .set_send_buffer_size(64 << 10)
+        .ok();
     if stream.set_nonblocking(true).is_err() {
         return;
     }
