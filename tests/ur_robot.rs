@@ -479,7 +479,11 @@ fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     println!("robot log: {}", stdout.trim());
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = std::fs::read_to_string(&csv).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
