@@ -168,7 +168,7 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
                 tracing::info!("controller message (level {level}): {message}")
             }
         }
-        let whole = start.elapsed().as_secs() as u64;
+        let whole = start.elapsed().as_secs();
         if whole > shown {
             progress.inc(whole - shown);
             shown = whole;
