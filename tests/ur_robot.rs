@@ -429,9 +429,9 @@ fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
         let mut script = std::net::TcpStream::connect(sim.script_addr()).unwrap();
         use std::io::Write as _;
         let p = row.start_pose;
-        write!(
+        writeln!(
             script,
-            "movel(p[{},{},{},{},{},{}], a=1.0, v=0.1)\n",
+            "movel(p[{},{},{},{},{},{}], a=1.0, v=0.1)",
             p[0], p[1], p[2], p[3], p[4], p[5]
         )
         .unwrap();
