@@ -37,6 +37,17 @@ fn addresses(sim: &UrSim, stall_periods: f64) -> UrAddresses {
     }
 }
 
+/// The controller `timestamp` of each sample of a row.
+fn controller_times(samples: &[mmnormd::ur::rtde::Sample], ts: usize) -> Vec<f64> {
+    samples
+        .iter()
+        .map(|s| match s.values[ts] {
+            Value::Double(t) => t,
+            _ => f64::NAN,
+        })
+        .collect()
+}
+
 fn small_spec() -> ScanSpec {
     ScanSpec {
         centre_in_base_m: [0.45, -0.20, 0.35],
@@ -63,14 +74,7 @@ fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
         let record = robot.drive_row(row, &spec).unwrap();
         assert_eq!(record.outcome, RowOutcome::Completed);
         assert_eq!(record.gaps, 0);
-        let times: Vec<f64> = record
-            .samples
-            .iter()
-            .map(|s| match s.values[ts] {
-                Value::Double(t) => t,
-                _ => f64::NAN,
-            })
-            .collect();
+        let times = controller_times(&record.samples, ts);
         let missing = times
             .windows(2)
             .filter(|w| (w[1] - w[0] - 0.002).abs() > 1e-9)
@@ -260,14 +264,7 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
     };
     assert_eq!(safety, SafetyStatus::ProtectiveStop);
     let ts = robot.timestamp_index();
-    let stamps: Vec<f64> = record
-        .samples
-        .iter()
-        .map(|s| match s.values[ts] {
-            Value::Double(t) => t,
-            _ => f64::NAN,
-        })
-        .collect();
+    let stamps = controller_times(&record.samples, ts);
     let stop_sample = stamps
         .iter()
         .position(|t| Some(*t) == at_controller_s)
@@ -493,4 +490,88 @@ fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
     assert!(rows.len() > 400, "{} rows in 1 s at 500 Hz", rows.len());
     assert!(rows.iter().all(|r| r.split(',').count() == header.len()));
     assert!(stdout.contains(&format!("{} packages", rows.len())));
+}
+
+#[test]
+fn a_protocol_1_controller_is_spoken_to_in_protocol_1() {
+    let sim = sim(
+        UrSimConfig::default(),
+        Faults {
+            protocol_v1_only: true,
+            ..Faults::default()
+        },
+    );
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    let connected = next_event(&client, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Connected { .. } | RtdeEvent::Failed(_))
+    });
+    assert!(
+        matches!(connected, Some(RtdeEvent::Connected { protocol: 1, .. })),
+        "{connected:?}"
+    );
+    let mut stamps = Vec::new();
+    while stamps.len() < 100 {
+        if let Some(RtdeEvent::Sample(s)) = next_event(&client, Duration::from_secs(1), |e| {
+            matches!(e, RtdeEvent::Sample(_))
+        }) {
+            stamps.extend(s.controller_s);
+        }
+    }
+    // Protocol 1 has no frequency: the controller sends at its maximum, 500 Hz.
+    let period = (stamps[99] - stamps[0]) / 99.0;
+    println!(
+        "protocol 1: connected, {} packages at a {:.3} ms period",
+        stamps.len(),
+        period * 1e3
+    );
+    assert!((period - 0.002).abs() < 1e-9);
+}
+
+#[test]
+fn a_client_that_stops_reading_is_dropped_after_10_s() {
+    use mmnormd::ur::rtde::ClientMessage;
+    use std::io::{Read as _, Write as _};
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let socket = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    socket.connect(&sim.rtde_addr().into()).unwrap();
+    let mut stream: std::net::TcpStream = socket.into();
+    for m in [
+        ClientMessage::RequestProtocolVersion(2),
+        ClientMessage::SetupOutputs {
+            frequency_hz: 500.0,
+            names: [
+                "timestamp",
+                "actual_TCP_pose",
+                "target_TCP_pose",
+                "actual_q",
+            ]
+            .map(String::from)
+            .to_vec(),
+        },
+        ClientMessage::Start,
+    ] {
+        stream.write_all(&m.encode(2).unwrap()).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Read nothing now, then see when the server gives up.
+    let stopped_reading = Instant::now();
+    // The buffers fill in well under a second; the server gives up 10 s after that.
+    std::thread::sleep(Duration::from_secs(13));
+    stream
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut total = 0usize;
+    let closed_after = loop {
+        match stream.read(&mut buf) {
+            Ok(0) | Err(_) => break stopped_reading.elapsed(),
+            Ok(n) => total += n,
+        }
+    };
+    println!(
+        "unread client: dropped; {total} buffered bytes drained, connection closed {:.1} s after the client stopped reading",
+        closed_after.as_secs_f64()
+    );
+    assert!(closed_after < Duration::from_secs(30));
 }

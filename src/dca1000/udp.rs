@@ -21,6 +21,7 @@ use socket2::{Domain, Protocol, Socket, Type};
 use super::board::{BoardError, CaptureBoard, Exchange, ReceiveCounters};
 use super::command::{AsyncEvent, Command, FpgaConfig, FpgaVersion, PacketConfig, Response};
 use super::samples::IqOrder;
+use crate::netio::is_would_block;
 
 /// The `[dca1000]` section of a lab config. Defaults are the board's factory settings (A1) and
 /// the recommended modes (A3).
@@ -223,13 +224,6 @@ impl UdpBoard {
     }
 }
 
-fn is_timeout(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-    )
-}
-
 /// Sends a command and waits for its reply; async status packets met on the way are kept.
 impl Exchange for UdpBoard {
     fn exchange(&mut self, command: Command, name: &'static str) -> Result<u16, BoardError> {
@@ -251,7 +245,7 @@ impl Exchange for UdpBoard {
                 .map_err(io_err("setting the config socket timeout"))?;
             let n = match self.control.recv_from(&mut buf) {
                 Ok((n, _)) => n,
-                Err(e) if is_timeout(&e) => continue,
+                Err(e) if is_would_block(&e) => continue,
                 Err(e) => return Err(io_err(format!("waiting for the reply to {name}"))(e)),
             };
             let reply = Response::decode(&buf[..n]).map_err(|source| BoardError::BadReply {
@@ -344,7 +338,7 @@ fn receive(
     while !stop.load(Ordering::Relaxed) {
         let (n, from) = match socket.recv_from(&mut buf) {
             Ok(r) => r,
-            Err(e) if is_timeout(&e) => continue,
+            Err(e) if is_would_block(&e) => continue,
             Err(_) => break,
         };
         if from.ip() != board_ip {

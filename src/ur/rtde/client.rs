@@ -19,7 +19,7 @@ use std::sync::mpsc::{self, Receiver, Sender};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::netio::write_all_within;
+use crate::netio::{is_would_block, write_all_within};
 
 use super::codec::{
     ClientMessage, CodecError, FieldType, PacketReader, Recipe, RobotMessage, Value,
@@ -279,18 +279,11 @@ impl Session {
                     });
                 }
                 Ok(n) => self.reader.feed(&buf[..n]),
-                Err(e) if is_timeout(&e) => {}
+                Err(e) if is_would_block(&e) => {}
                 Err(e) => return Err(io_error(addr)(e)),
             }
         }
     }
-}
-
-fn is_timeout(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-    )
 }
 
 fn recipe_from(
@@ -547,7 +540,7 @@ fn read_loop(
                     }
                 }
             }
-            Err(e) if is_timeout(&e) => std::thread::sleep(poll),
+            Err(e) if is_would_block(&e) => std::thread::sleep(poll),
             Err(e) => return format!("read failed: {e}"),
         }
         if !paused && last_package.elapsed() > stall {

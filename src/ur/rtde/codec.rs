@@ -379,6 +379,26 @@ fn need(ty: u8, what: &'static str, b: &[u8], expected: usize) -> Result<(), Cod
     }
 }
 
+/// Splits off a leading byte (a recipe id or a level), or reports it missing.
+fn leading_byte<'a>(ty: u8, what: &'static str, b: &'a [u8]) -> Result<(u8, &'a [u8]), CodecError> {
+    b.split_first()
+        .map(|(&first, rest)| (first, rest))
+        .ok_or(CodecError::Length {
+            ty: char::from(ty),
+            what,
+            expected: 1,
+            actual: 0,
+        })
+}
+
+/// A data package: the recipe id (when given) and the fields.
+fn data_frame(recipe_id: Option<u8>, fields: &[u8]) -> Result<Vec<u8>, CodecError> {
+    let mut p = Vec::with_capacity(1 + fields.len());
+    p.extend(recipe_id);
+    p.extend_from_slice(fields);
+    frame(DATA_PACKAGE, &p)
+}
+
 fn split_names(s: &str) -> Vec<String> {
     if s.is_empty() {
         Vec::new()
@@ -411,12 +431,7 @@ impl ClientMessage {
             }
             ClientMessage::Start => frame(CONTROL_PACKAGE_START, &[]),
             ClientMessage::Pause => frame(CONTROL_PACKAGE_PAUSE, &[]),
-            ClientMessage::Data { recipe_id, fields } => {
-                let mut p = Vec::with_capacity(1 + fields.len());
-                p.push(*recipe_id);
-                p.extend_from_slice(fields);
-                frame(DATA_PACKAGE, &p)
-            }
+            ClientMessage::Data { recipe_id, fields } => data_frame(Some(*recipe_id), fields),
         }
     }
 
@@ -463,14 +478,7 @@ impl ClientMessage {
                 ClientMessage::Pause
             }
             DATA_PACKAGE => {
-                let Some((&recipe_id, fields)) = b.split_first() else {
-                    return Err(CodecError::Length {
-                        ty: 'U',
-                        what: "recipe id",
-                        expected: 1,
-                        actual: 0,
-                    });
-                };
+                let (recipe_id, fields) = leading_byte(ty, "recipe id", b)?;
                 ClientMessage::Data {
                     recipe_id,
                     fields: fields.to_vec(),
@@ -539,12 +547,7 @@ impl RobotMessage {
             RobotMessage::StartAccepted(a) => frame(CONTROL_PACKAGE_START, &[u8::from(*a)]),
             RobotMessage::PauseAccepted(a) => frame(CONTROL_PACKAGE_PAUSE, &[u8::from(*a)]),
             RobotMessage::Data { recipe_id, fields } => {
-                let mut p = Vec::with_capacity(1 + fields.len());
-                if protocol >= 2 {
-                    p.push(*recipe_id);
-                }
-                p.extend_from_slice(fields);
-                frame(DATA_PACKAGE, &p)
+                data_frame((protocol >= 2).then_some(*recipe_id), fields)
             }
         }
     }
@@ -587,14 +590,7 @@ impl RobotMessage {
                         level: b[level_at],
                     }
                 } else {
-                    let Some((&level, msg)) = b.split_first() else {
-                        return Err(CodecError::Length {
-                            ty: 'M',
-                            what: "level",
-                            expected: 1,
-                            actual: 0,
-                        });
-                    };
+                    let (level, msg) = leading_byte(ty, "level", b)?;
                     RobotMessage::Text {
                         level,
                         message: text(ty, msg)?,
@@ -604,17 +600,7 @@ impl RobotMessage {
             }
             CONTROL_PACKAGE_SETUP_OUTPUTS | CONTROL_PACKAGE_SETUP_INPUTS => {
                 let (recipe_id, rest) = if protocol >= 2 || ty == CONTROL_PACKAGE_SETUP_INPUTS {
-                    match b.split_first() {
-                        Some((&id, rest)) => (id, rest),
-                        None => {
-                            return Err(CodecError::Length {
-                                ty: char::from(ty),
-                                what: "recipe id",
-                                expected: 1,
-                                actual: 0,
-                            });
-                        }
-                    }
+                    leading_byte(ty, "recipe id", b)?
                 } else {
                     (0, b)
                 };
@@ -640,14 +626,7 @@ impl RobotMessage {
             }
             DATA_PACKAGE => {
                 if protocol >= 2 {
-                    let Some((&recipe_id, fields)) = b.split_first() else {
-                        return Err(CodecError::Length {
-                            ty: 'U',
-                            what: "recipe id",
-                            expected: 1,
-                            actual: 0,
-                        });
-                    };
+                    let (recipe_id, fields) = leading_byte(ty, "recipe id", b)?;
                     RobotMessage::Data {
                         recipe_id,
                         fields: fields.to_vec(),

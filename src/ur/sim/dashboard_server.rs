@@ -112,14 +112,7 @@ pub(crate) fn serve(stream: TcpStream, arm: Arc<Mutex<ArmState>>, stop: Arc<Atom
         match reader.read_line(&mut line) {
             Ok(0) => return,
             Ok(_) => {}
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
-                continue;
-            }
+            Err(e) if crate::netio::is_would_block(&e) => continue,
             Err(_) => return,
         }
         if !line.ends_with('\n') {

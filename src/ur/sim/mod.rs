@@ -33,6 +33,8 @@ pub struct Faults {
     pub stall_until: Option<Instant>,
     /// Input registers 0–23 answer `IN_USE`.
     pub fieldbus_holds_registers: bool,
+    /// Refuse protocol version 2, as a controller older than 3.2 would.
+    pub protocol_v1_only: bool,
 }
 
 /// Where and how the simulator starts.
@@ -276,14 +278,7 @@ fn serve_script(mut stream: TcpStream, arm: Arc<Mutex<ArmState>>, stop: Arc<Atom
         match stream.read(&mut buf) {
             Ok(0) => return,
             Ok(n) => pending.push_str(&String::from_utf8_lossy(&buf[..n])),
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
-                continue;
-            }
+            Err(e) if crate::netio::is_would_block(&e) => continue,
             Err(_) => return,
         }
         while let Some(end) = pending.find('\n') {

@@ -91,7 +91,7 @@ pub(crate) fn serve(
     stream.set_nodelay(true).ok();
     // A modest send buffer, so a client that stops reading is noticed in seconds, not minutes.
     socket2::SockRef::from(&stream)
-        .set_send_buffer_size(64 << 10)
+        .set_send_buffer_size(16 << 10)
         .ok();
     if stream.set_nonblocking(true).is_err() {
         return;
@@ -147,7 +147,8 @@ pub(crate) fn serve(
             };
             let reply = match message {
                 ClientMessage::RequestProtocolVersion(v) => {
-                    let ok = v == 1 || v == 2;
+                    let v1_only = faults.lock().map(|f| f.protocol_v1_only).unwrap_or(false);
+                    let ok = v == 1 || (v == 2 && !v1_only);
                     if ok {
                         protocol = v;
                     }
