@@ -575,3 +575,27 @@ fn a_client_that_stops_reading_is_dropped_after_10_s() {
     );
     assert!(closed_after < Duration::from_secs(30));
 }
+
+#[test]
+fn power_on_and_brake_release_poll_until_running() {
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let mut dashboard =
+        DashboardClient::connect(sim.dashboard_addr(), Duration::from_secs(2)).unwrap();
+    assert_eq!(dashboard.command("power off").unwrap(), "Powering off");
+    assert_eq!(
+        dashboard.robot_mode().unwrap(),
+        mmnormd::ur::dashboard::RobotMode::PowerOff
+    );
+    dashboard
+        .power_on_and_release_brakes(Duration::from_secs(5))
+        .unwrap();
+    assert_eq!(
+        dashboard.robot_mode().unwrap(),
+        mmnormd::ur::dashboard::RobotMode::Running
+    );
+    assert_eq!(
+        dashboard.program_state().unwrap().state,
+        "STOPPED",
+        "no program runs after a power cycle"
+    );
+}
