@@ -8,7 +8,14 @@
 //! reaches back into an earlier one.
 //!
 //! Layout:
-//! - [`radar`]: the IWR1443 chirp profile, parsed from a mmWave CLI `.cfg` script.
+//! - [`radar`]: the IWR1443: its chirp profile (`.cfg`), its UART CLI session and a PTY
+//!   simulator of that CLI.
+//! - [`dca1000`]: the DCA1000EVM: command and packet codecs, the reassembler, the sample layout,
+//!   the UDP transport, a simulator and a fault injector.
+//! - [`ur`]: the UR5e: RTDE codec and client, Dashboard, clock mapping, raster planner, and a
+//!   simulator.
+//! - [`lab`]: `lab.toml`, the simulated radar chain and the radar-only capture sequence.
+//! - [`netio`]: nonblocking socket waits below the kernel tick.
 //! - [`capture`]: the in-memory capture and the on-disk *capture directory v1* (`.npy` + JSON).
 //! - [`geometry`]: triangle meshes, their file formats (STL, OBJ, PLY), primitives and a BVH.
 //! - [`signal`]: the FMCW tone synthesis and the seeded noise generator shared by every model.
@@ -17,7 +24,7 @@
 //!   backprojection and interferometric baselines.
 //! - [`eval`]: the paper's metrics (F-score, point, position and normal errors).
 //! - [`preview`] and [`plot`]: PNG pictures and charts for people.
-//! - [`bench`]: the accuracy benchmark (the paper's evaluation over a suite of simulated scenes).
+//! - [`bench`](mod@bench): the accuracy benchmark (the paper's evaluation over a suite of simulated scenes).
 //! - [`progress`]: progress bars on a terminal, periodic log lines elsewhere.
 //!
 //! The command-line front end lives in the binary (`src/main.rs` and `src/cli/`); it is the only

@@ -1,6 +1,6 @@
 //! The IWR1443 radar: its chirp profile, its UART command line, and a simulator of that line.
 //!
-//! - [`profile`]: the meaning of a TI mmWave CLI configuration script (`.cfg`): it parses the
+//! - `profile` ([`RadarProfile`]): the meaning of a TI mmWave CLI configuration script (`.cfg`): it parses the
 //!   lines, applies the mmWave SDK's unit conversions (including their truncation to register
 //!   codes), checks the result against the IWR1443's limits and derives the frequency plan that
 //!   every later stage uses.

@@ -3,7 +3,7 @@
 //! - **Backprojection**: the voxel centres where |S| ≥ `fraction`·max|S|. The paper tuned the
 //!   fraction for the best median F-score without giving it; mmnormd's default is 0.3
 //!   (`ReconConfig::backprojection_fraction`), to be revisited by the accuracy benchmark.
-//! - **Interferometric**, after Gao et al. [21]:
+//! - **Interferometric**, after Gao et al. \[21\]:
 //!   1. The reference height z_ref is the mean height of the 3-D image's high-power voxels
 //!      (|S| ≥ `fraction`·max).
 //!   2. The band is split into `subbands` equal sub-bands; each gives a 2-D SAR image focused

@@ -304,7 +304,7 @@ pub fn backproject(
     })
 }
 
-/// Eq. 4–5 evaluated directly in f64: S(v) = mean_j Σ_t h_j[t]·exp(−j2π f_t D_j(v)/c).
+/// Eq. 4–5 evaluated directly in f64: S(v) = mean_j Σ_t h_j\[t\]·exp(−j2π f_t D_j(v)/c).
 /// O(voxels × antennas × T): for tests on small cases.
 pub fn backproject_exact_f64(capture: &Capture, grid: &VoxelGrid) -> Vec<Complex64> {
     let [nx, ny, nz] = grid.dims;

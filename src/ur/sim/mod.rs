@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use state::ArmState;
 
-/// Faults the simulator injects; change them while it runs with [`UrSim::faults`].
+/// Faults the simulator injects; change them while it runs with [`UrSim::set_faults`].
 #[derive(Debug, Clone, Default)]
 pub struct Faults {
     pub seed: u64,
