@@ -303,6 +303,13 @@ fn local_mode_is_a_clear_error() {
         err.to_string()
             .contains("switch the robot to Remote Control")
     );
+    // A row is refused up front rather than sent to be ignored.
+    let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
+    let spec = small_spec();
+    let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
+    let err = robot.drive_row(&plan.rows[0], &spec).unwrap_err();
+    assert!(err.to_string().contains("Remote Control"), "{err}");
+    assert_eq!(sim.arm().moves_started, 0);
 }
 
 #[test]

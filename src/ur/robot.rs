@@ -302,6 +302,10 @@ impl Robot for UrRobot {
 
     fn drive_row(&mut self, row: &Row, spec: &ScanSpec) -> Result<RowRecord, RobotError> {
         let status = self.status()?;
+        if !status.remote_control {
+            // Script sent in Local mode is silently ignored (protocols.md §0 fact 9).
+            return Err(DashboardError::LocalMode.into());
+        }
         if status.robot_mode != RobotMode::Running || status.safety.is_stop() {
             return Err(RobotError::NotReady {
                 mode: status.robot_mode.name().into(),
