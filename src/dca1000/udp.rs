@@ -368,12 +368,9 @@ fn socket_inode(socket: &UdpSocket) -> Option<u64> {
 
 /// The `drops` column of the `/proc/net/udp` row whose `inode` column is `inode`.
 pub fn udp_drops_for_inode(proc_net_udp: &str, inode: u64) -> Option<u64> {
-    let mut lines = proc_net_udp.lines();
-    let header: Vec<&str> = lines.next()?.split_whitespace().collect();
     // The header names "tx_queue rx_queue" and "tr tm->when" as separate words although each
-    // pair is one column in the rows; locate columns from the end instead.
-    let _ = header;
-    for line in lines {
+    // pair is one column in the rows, so columns are located from the end of each row instead.
+    for line in proc_net_udp.lines().skip(1) {
         let cols: Vec<&str> = line.split_whitespace().collect();
         // Rows end: ... uid timeout inode ref pointer drops
         if cols.len() < 6 {

@@ -82,14 +82,8 @@ pub(crate) fn reply(arm: &mut ArmState, command: &str, now: Instant) -> String {
         }
         "close safety popup" => "closing safety popup".into(),
         "close popup" => "closing popup".into(),
-        other => {
-            if let Some(text) = other.strip_prefix("addToLog ") {
-                let _ = text;
-                "Added log message".into()
-            } else {
-                format!("could not understand: '{other}'")
-            }
-        }
+        other if other.starts_with("addToLog ") => "Added log message".into(),
+        other => format!("could not understand: '{other}'"),
     }
 }
 

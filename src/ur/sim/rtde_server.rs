@@ -120,7 +120,6 @@ pub(crate) fn serve(
             }
             _ => (None, 0.0),
         };
-        let _ = now;
         let mut got_input = false;
         loop {
             match stream.read(&mut buf) {
