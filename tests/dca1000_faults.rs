@@ -15,14 +15,9 @@ const FRAME_BYTES: usize = 8192;
 const FRAMES: usize = 4000;
 
 fn source() -> Arc<AdcStream> {
-    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut rng = mmnormd::signal::Rng::new(0x2545_F491_4F6C_DD1D);
     let bytes = (0..FRAMES * FRAME_BYTES)
-        .map(|_| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 32) as u8
-        })
+        .map(|_| (rng.next_u64() >> 32) as u8)
         .collect();
     Arc::new(AdcStream {
         frame_bytes: FRAME_BYTES,

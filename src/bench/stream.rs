@@ -14,6 +14,7 @@ use crate::dca1000::fault::{FaultConfig, FaultInjector};
 use crate::dca1000::packet::packetize;
 use crate::dca1000::reassembler::Reassembler;
 use crate::dca1000::samples::{FrameLayout, IqOrder};
+use crate::signal::Rng;
 
 /// The real stream rate of the mmNorm profile, bytes per second.
 pub const REAL_RATE_BYTES_PER_S: f64 = 8192.0 / 0.003;
@@ -48,14 +49,9 @@ pub fn run_stream_bench(frames: usize, repeats: usize, faults: bool) -> StreamBe
         iq_order: IqOrder::IFirst,
     };
     let frame_bytes = layout.frame_bytes();
-    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);
     let stream: Vec<u8> = (0..frames * frame_bytes)
-        .map(|_| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state as u8
-        })
+        .map(|_| rng.next_u64() as u8)
         .collect();
     let mut datagrams = packetize(&stream, 1);
     if faults {

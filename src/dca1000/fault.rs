@@ -49,6 +49,13 @@ impl FaultConfig {
     }
 }
 
+/// The sequence number of a data datagram (its first four bytes, little-endian).
+fn sequence_of(datagram: &[u8]) -> Option<u32> {
+    datagram
+        .get(..4)
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+}
+
 /// What the injector did, counted on its output.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
 pub struct InjectedFaults {
@@ -101,10 +108,8 @@ impl FaultInjector {
         let hold = self.held.is_empty() && self.roll(self.config.reorder_probability);
         if lose {
             self.truth.dropped += 1;
-            if let Some(b) = datagram.get(..4) {
-                self.truth
-                    .dropped_sequences
-                    .push(u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+            if let Some(seq) = sequence_of(&datagram) {
+                self.truth.dropped_sequences.push(seq);
             }
         } else if hold {
             let depth = 1 + (self.rng.next_u64() % self.config.reorder_depth.max(1) as u64);
@@ -137,10 +142,7 @@ impl FaultInjector {
     }
 
     fn emit(&mut self, datagram: Vec<u8>, duplicate: bool, out: &mut Vec<Vec<u8>>) {
-        if let Some(seq) = datagram
-            .get(..4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        {
+        if let Some(seq) = sequence_of(&datagram) {
             match self.max_sequence {
                 Some(max) if seq < max => self.truth.reordered += 1,
                 _ => self.max_sequence = Some(seq),

@@ -51,7 +51,6 @@ impl LoopbackBoard {
         while let Ok(msg) = self.triggers.try_recv() {
             match msg {
                 TriggerMsg::Start(plan) => self.core.sensor_start(plan, Instant::now()),
-                TriggerMsg::Stop => self.core.sensor_stop(),
             }
         }
         self.core.poll(Instant::now());

@@ -129,7 +129,6 @@ impl Pending {
 struct SequenceSet {
     base: u32,
     bits: Vec<u64>,
-    count: u64,
 }
 
 impl SequenceSet {
@@ -137,7 +136,6 @@ impl SequenceSet {
         Self {
             base,
             bits: Vec::new(),
-            count: 0,
         }
     }
 
@@ -155,7 +153,6 @@ impl SequenceSet {
         }
         let fresh = self.bits[word] & (1 << bit) == 0;
         self.bits[word] |= 1 << bit;
-        self.count += u64::from(fresh);
         Some(fresh)
     }
 

@@ -295,9 +295,6 @@ impl BoardCore {
         });
     }
 
-    /// The radar stopped: data already captured still drains on schedule.
-    pub fn sensor_stop(&mut self) {}
-
     fn stop_stream(&mut self) {
         if self.streaming.take().is_some() {
             let mut out = Vec::new();
@@ -416,7 +413,6 @@ pub struct SimAddresses {
 
 pub(crate) enum TriggerMsg {
     Start(StreamPlan),
-    Stop,
 }
 
 /// A handle the radar simulator uses to start and stop the board's stream.
@@ -431,10 +427,6 @@ impl SensorTrigger {
     pub fn start(&self, plan: StreamPlan) {
         self.0.send(TriggerMsg::Start(plan)).ok();
     }
-
-    pub fn stop(&self) {
-        self.0.send(TriggerMsg::Stop).ok();
-    }
 }
 
 /// The UDP shell around [`BoardCore`], on its own thread.
@@ -442,7 +434,7 @@ pub struct DcaSimulator {
     config_addr: SocketAddr,
     trigger: SensorTrigger,
     stop: Arc<AtomicBool>,
-    stats: Arc<Mutex<SimStats>>,
+    core: Arc<Mutex<BoardCore>>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -477,22 +469,20 @@ impl DcaSimulator {
         })?;
         let (tx, rx) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
-        let stats = Arc::new(Mutex::new(SimStats::default()));
         let host_data = addresses.host_data;
-        let core = BoardCore::new(config, source);
+        let core = Arc::new(Mutex::new(BoardCore::new(config, source)));
         let thread = {
-            let stop = stop.clone();
-            let stats = stats.clone();
+            let (stop, core) = (stop.clone(), core.clone());
             std::thread::Builder::new()
                 .name("dca1000-sim".into())
-                .spawn(move || run(core, control, data, host_data, rx, stop, stats))
+                .spawn(move || run(&core, control, data, host_data, rx, stop))
                 .ok()
         };
         Ok(Self {
             config_addr,
             trigger: SensorTrigger(tx),
             stop,
-            stats,
+            core,
             thread,
         })
     }
@@ -509,7 +499,7 @@ impl DcaSimulator {
 
     /// Counters so far.
     pub fn stats(&self) -> SimStats {
-        self.stats.lock().map(|s| s.clone()).unwrap_or_default()
+        self.core.lock().map(|c| c.stats()).unwrap_or_default()
     }
 
     /// Stops the thread and returns the final counters.
@@ -532,19 +522,21 @@ impl Drop for DcaSimulator {
 }
 
 fn run(
-    mut core: BoardCore,
+    shared: &Mutex<BoardCore>,
     control: UdpSocket,
     data: UdpSocket,
     host_data: SocketAddr,
     triggers: mpsc::Receiver<TriggerMsg>,
     stop: Arc<AtomicBool>,
-    stats: Arc<Mutex<SimStats>>,
 ) {
     let mut host_control: Option<SocketAddr> = None;
     let mut buf = vec![0u8; 2048];
     // Nonblocking with sleeps: a socket timeout would round to the kernel tick (netio).
     control.set_nonblocking(true).ok();
     while !stop.load(Ordering::Relaxed) {
+        let Ok(mut core) = shared.lock() else {
+            return;
+        };
         let mut idle = true;
         while let Ok((n, from)) = control.recv_from(&mut buf) {
             host_control = Some(from);
@@ -554,7 +546,6 @@ fn run(
         while let Ok(msg) = triggers.try_recv() {
             match msg {
                 TriggerMsg::Start(plan) => core.sensor_start(plan, Instant::now()),
-                TriggerMsg::Stop => core.sensor_stop(),
             }
         }
         core.poll(Instant::now());
@@ -570,11 +561,10 @@ fn run(
                 }
             }
         }
-        if let Ok(mut s) = stats.lock() {
-            *s = core.stats();
-        }
+        let next = core.next_deadline();
+        drop(core);
         if idle {
-            crate::netio::sleep_until(core.next_deadline(), Duration::from_millis(1));
+            crate::netio::sleep_until(next, Duration::from_millis(1));
         }
     }
 }

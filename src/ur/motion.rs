@@ -79,14 +79,19 @@ pub struct Row {
     pub duration_s: f64,
 }
 
+/// A `movel` statement to `pose` in base, with its line end.
+pub fn movel_script(pose: &[f64; 6], speed_m_per_s: f64, accel_m_per_s2: f64) -> String {
+    let p = pose;
+    format!(
+        "movel(p[{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}], a={accel_m_per_s2:.4}, v={speed_m_per_s:.4})\n",
+        p[0], p[1], p[2], p[3], p[4], p[5]
+    )
+}
+
 impl Row {
     /// The URScript statement that drives this row.
     pub fn urscript(&self, speed_m_per_s: f64, accel_m_per_s2: f64) -> String {
-        let p = self.end_pose;
-        format!(
-            "movel(p[{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}], a={accel_m_per_s2:.4}, v={speed_m_per_s:.4})\n",
-            p[0], p[1], p[2], p[3], p[4], p[5]
-        )
+        movel_script(&self.end_pose, speed_m_per_s, accel_m_per_s2)
     }
 }
 

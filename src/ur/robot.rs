@@ -14,7 +14,7 @@ use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
 use super::dashboard::{DashboardClient, DashboardError, RobotMode, SafetyStatus};
-use super::motion::{Row, ScanSpec};
+use super::motion::{Row, ScanSpec, movel_script};
 use super::rtde::{RtdeClient, RtdeConfig, RtdeError, RtdeEvent, Sample, Value};
 
 /// Why the robot could not do what was asked.
@@ -314,10 +314,7 @@ impl Robot for UrRobot {
         }
         let gaps_before = self.gaps;
         let p = row.start_pose;
-        let approach = format!(
-            "movel(p[{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}], a={:.4}, v={:.4})\n",
-            p[0], p[1], p[2], p[3], p[4], p[5], spec.accel_m_per_s2, spec.speed_m_per_s
-        );
+        let approach = movel_script(&p, spec.speed_m_per_s, spec.accel_m_per_s2);
         let here = self
             .latest
             .as_ref()

@@ -111,12 +111,11 @@ pub(crate) fn serve(
             (Some((_, f)), true) => {
                 let period = 1.0 / f;
                 let c = first_tick_controller_s + tick as f64 * period;
-                let host_s = arm.lock().map(|a| controller_to_host(&a, c)).unwrap_or(0.0);
-                let boot = arm.lock().map(|a| a.boot).unwrap_or(now);
-                (
-                    Some(boot + Duration::from_secs_f64(host_s.max(0.0))),
-                    period,
-                )
+                let due = arm
+                    .lock()
+                    .map(|a| a.boot + Duration::from_secs_f64(controller_to_host(&a, c).max(0.0)))
+                    .unwrap_or(now);
+                (Some(due), period)
             }
             _ => (None, 0.0),
         };
