@@ -14,6 +14,7 @@
 //!   the UDP transport, a simulator and a fault injector.
 //! - [`ur`]: the UR5e: RTDE codec and client, Dashboard, clock mapping, raster planner, and a
 //!   simulator.
+//! - [`align`]: time alignment of radar frames with robot poses (pure functions of recorded data).
 //! - [`lab`]: `lab.toml`, the simulated radar chain and the radar-only capture sequence.
 //! - [`netio`]: nonblocking socket waits below the kernel tick.
 //! - [`capture`]: the in-memory capture and the on-disk *capture directory v1* (`.npy` + JSON).
@@ -30,6 +31,7 @@
 //! The command-line front end lives in the binary (`src/main.rs` and `src/cli/`); it is the only
 //! place that uses `anyhow`. Library modules return their own `thiserror` enums.
 
+pub mod align;
 pub mod bench;
 pub mod capture;
 pub mod dca1000;
