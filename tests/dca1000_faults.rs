@@ -41,6 +41,7 @@ fn run(faults: FaultConfig, src: &Arc<AdcStream>) -> (Vec<Frame>, StreamStats, I
         StreamPlan {
             frames: FRAMES as u64,
             frame_period_s: 0.003,
+            acquired_s: 0.000_07,
         },
         t0,
     );

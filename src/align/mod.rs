@@ -72,7 +72,9 @@ impl AlignConfig {
     pub fn validate(&self) -> Result<(), String> {
         let finite = |name: &str, values: &[f64]| -> Result<(), String> {
             match values.iter().find(|v| !v.is_finite()) {
-                Some(v) => Err(format!("align.{name} holds {v}, which is not a finite number")),
+                Some(v) => Err(format!(
+                    "align.{name} holds {v}, which is not a finite number"
+                )),
                 None => Ok(()),
             }
         };

@@ -70,6 +70,9 @@ mod tests {
         let mid = pose_of_isometry(&interpolate(&a, &b, 0.25));
         assert!((mid[0] - 0.05).abs() < 1e-12 && (mid[1] + 0.025).abs() < 1e-12);
         assert!((mid[2] - 0.1).abs() < 1e-12, "{mid:?}");
-        assert!((mid[5] - 0.25).abs() < 1e-12, "slerp keeps the axis and splits the angle: {mid:?}");
+        assert!(
+            (mid[5] - 0.25).abs() < 1e-12,
+            "slerp keeps the axis and splits the angle: {mid:?}"
+        );
     }
 }

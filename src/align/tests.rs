@@ -102,7 +102,10 @@ fn worst_tx_error_m(config: &AlignConfig, aligned: &RowAlignment, radar_ppm: f64
             let true_host =
                 T0_HOST_S + (f.frame as f64 * T + timing().centre_s) * (1.0 + radar_ppm * 1e-6);
             let base_from_radar = pose::isometry_of_pose(&tcp_pose_at(true_host)) * tcp_from_radar;
-            distance_m(&pose::apply(&base_from_radar, &config.tx_in_radar_m), &f.tx_in_base_m)
+            distance_m(
+                &pose::apply(&base_from_radar, &config.tx_in_radar_m),
+                &f.tx_in_base_m,
+            )
         })
         .fold(0.0, f64::max)
 }
@@ -121,7 +124,11 @@ fn kept_frames_sit_where_the_antenna_was_at_their_chirp() {
     );
     // 10 µm = 0.1 ms at 0.1 m/s.
     assert!(error_m < 10e-6, "{error_m}");
-    assert!((aligned.radar_fit.drift - 30e-6).abs() < 5e-6, "{:?}", aligned.radar_fit);
+    assert!(
+        (aligned.radar_fit.drift - 30e-6).abs() < 5e-6,
+        "{:?}",
+        aligned.radar_fit
+    );
 }
 
 #[test]
@@ -133,7 +140,10 @@ fn an_uncalibrated_latency_floor_shifts_the_row_by_speed_times_floor() {
     };
     let aligned = align_row(&config, &timing(), &input(&r)).unwrap();
     let error_m = worst_tx_error_m(&config, &aligned, 0.0);
-    assert!((error_m - SPEED_M_PER_S * RTDE_FLOOR_S).abs() < 1e-6, "{error_m}");
+    assert!(
+        (error_m - SPEED_M_PER_S * RTDE_FLOOR_S).abs() < 1e-6,
+        "{error_m}"
+    );
 }
 
 #[test]
@@ -146,10 +156,16 @@ fn kept_frames_are_spaced_by_at_least_three_sixteenths_of_a_wavelength() {
         .windows(2)
         .map(|w| distance_m(&w[0].tx_in_base_m, &w[1].tx_in_base_m))
         .collect();
-    assert!(gaps.iter().all(|g| *g >= min_m && *g < min_m + SPEED_M_PER_S * T + 1e-9));
+    assert!(
+        gaps.iter()
+            .all(|g| *g >= min_m && *g < min_m + SPEED_M_PER_S * T + 1e-9)
+    );
     // 0.3 mm per frame: every third frame is kept over the 0.2 m usable stretch.
     let usable_frames = (0.2 / (SPEED_M_PER_S * T)) as u64;
-    assert_eq!(aligned.dropped.too_close + aligned.frames.len() as u64, usable_frames + 1);
+    assert_eq!(
+        aligned.dropped.too_close + aligned.frames.len() as u64,
+        usable_frames + 1
+    );
     assert!(aligned.dropped.outside_usable > 0);
 }
 
@@ -169,15 +185,27 @@ fn flagged_frames_and_rtde_gaps_are_dropped_and_counted() {
     let aligned = align_row(&config, &timing(), &input(&r)).unwrap();
     assert_eq!(aligned.dropped.flagged, 3);
     // 16 or 17 frames fall into the hole, depending on where the samples sit.
-    assert!((15..=18).contains(&aligned.dropped.no_pose), "{:?}", aligned.dropped);
-    assert!(aligned.frames.iter().all(|f| ![1500, 1501, 2600].contains(&f.frame)));
+    assert!(
+        (15..=18).contains(&aligned.dropped.no_pose),
+        "{:?}",
+        aligned.dropped
+    );
+    assert!(
+        aligned
+            .frames
+            .iter()
+            .all(|f| ![1500, 1501, 2600].contains(&f.frame))
+    );
 }
 
 #[test]
 fn a_row_too_short_to_fit_is_refused_with_the_count() {
     let r = row(20, 0.0, 0.0, 4);
     let err = align_row(&config(), &timing(), &input(&r)).unwrap_err();
-    assert!(matches!(err, AlignError::RadarFit { packets: 112, .. }), "{err}");
+    assert!(
+        matches!(err, AlignError::RadarFit { packets: 112, .. }),
+        "{err}"
+    );
 }
 
 #[test]
@@ -186,11 +214,19 @@ fn config_errors_name_the_field_and_value() {
         max_pose_gap_s: f64::NAN,
         ..AlignConfig::default()
     };
-    assert!(bad.validate().unwrap_err().contains("align.max_pose_gap_s = NaN"));
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .contains("align.max_pose_gap_s = NaN")
+    );
     let bad = AlignConfig {
         pipeline_latency_s: -0.001,
         ..AlignConfig::default()
     };
-    assert!(bad.validate().unwrap_err().contains("align.pipeline_latency_s = -0.001"));
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .contains("align.pipeline_latency_s = -0.001")
+    );
     assert!(AlignConfig::default().validate().is_ok());
 }

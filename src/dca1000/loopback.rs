@@ -178,6 +178,7 @@ mod tests {
                 trigger.start(StreamPlan {
                     frames: 200,
                     frame_period_s: 0.003,
+                    acquired_s: 0.000_07,
                 });
                 Ok(())
             },

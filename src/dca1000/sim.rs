@@ -97,6 +97,40 @@ pub struct StreamPlan {
     /// Frames to send (the profile's count; 0 = all the source has).
     pub frames: u64,
     pub frame_period_s: f64,
+    /// From a frame's start to the end of its last chirp, when its data is on the LVDS lanes.
+    pub acquired_s: f64,
+}
+
+/// The bytes a radar puts on the LVDS lanes, frame after frame.
+pub trait FrameSource: Send + Sync {
+    fn frame_bytes(&self) -> usize;
+    /// Frames the source can give (`u64::MAX` for a live one).
+    fn frames(&self) -> u64;
+    /// The radar starts frames: frame k's first chirp begins at `t0 + k·frame_period_s`.
+    fn begin(&self, _t0: Instant, _plan: &StreamPlan) {}
+    /// Copies the stream's bytes from `offset` into `buf`; false while a live source is still
+    /// producing them.
+    fn read(&self, offset: usize, buf: &mut [u8]) -> bool;
+}
+
+impl FrameSource for AdcStream {
+    fn frame_bytes(&self) -> usize {
+        self.frame_bytes
+    }
+
+    fn frames(&self) -> u64 {
+        AdcStream::frames(self)
+    }
+
+    fn read(&self, offset: usize, buf: &mut [u8]) -> bool {
+        match self.bytes.get(offset..offset + buf.len()) {
+            Some(bytes) => {
+                buf.copy_from_slice(bytes);
+                true
+            }
+            None => false,
+        }
+    }
 }
 
 /// The simulator's settings.
@@ -143,7 +177,7 @@ pub enum Output {
 /// The sans-IO simulator.
 pub struct BoardCore {
     config: CoreConfig,
-    source: Arc<AdcStream>,
+    source: Arc<dyn FrameSource>,
     fpga: Option<FpgaConfig>,
     recording_since: Option<Instant>,
     /// Set once a sensor start came during this recording, or `NO_LVDS_DATA` was reported.
@@ -157,6 +191,9 @@ pub struct BoardCore {
 struct StreamState {
     t0: Instant,
     frame_period: Duration,
+    acquired: Duration,
+    /// Set while the source has not produced the next packet's bytes: poll again then.
+    retry_at: Option<Instant>,
     flush_delay: Duration,
     frame_bytes: u64,
     total_bytes: usize,
@@ -168,12 +205,12 @@ impl StreamState {
         self.total_bytes.div_ceil(RAW_PAYLOAD_LEN)
     }
 
-    /// When packet `i` is due: once the frame holding its last byte has been captured, plus
+    /// When packet `i` is due: once the frame holding its last byte has been acquired, plus
     /// the idle flush for a partial payload.
     fn due(&self, i: usize) -> Instant {
         let end = ((i + 1) * RAW_PAYLOAD_LEN).min(self.total_bytes);
-        let frames_done = (end as u64).div_ceil(self.frame_bytes);
-        let at = self.t0 + self.frame_period.mul_f64(frames_done as f64);
+        let last_frame = (end as u64).saturating_sub(1) / self.frame_bytes;
+        let at = self.t0 + self.frame_period.mul_f64(last_frame as f64) + self.acquired;
         if end - i * RAW_PAYLOAD_LEN == RAW_PAYLOAD_LEN {
             at
         } else {
@@ -182,18 +219,25 @@ impl StreamState {
     }
 }
 
+/// How soon to ask a live source again for bytes it has not produced yet.
+const SOURCE_RETRY: Duration = Duration::from_micros(200);
+
 /// What the simulator did.
-#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct SimStats {
     pub commands: u64,
     pub malformed_commands: u64,
     pub recordings: u64,
     pub packets_sent: u64,
+    /// Packets sent more than 1 ms after they were due because the source was late.
+    pub packets_late: u64,
+    /// The latest of them, milliseconds after due.
+    pub worst_late_ms: f64,
     pub injected: InjectedFaults,
 }
 
 impl BoardCore {
-    pub fn new(config: CoreConfig, source: Arc<AdcStream>) -> Self {
+    pub fn new(config: CoreConfig, source: Arc<dyn FrameSource>) -> Self {
         Self {
             injector: FaultInjector::new(config.faults.clone()),
             config,
@@ -276,7 +320,7 @@ impl BoardCore {
         if self.recording_since.is_none() {
             return;
         }
-        let frame_bytes = self.source.frame_bytes.max(1);
+        let frame_bytes = self.source.frame_bytes().max(1);
         let available = self.source.frames();
         let frames = if plan.frames == 0 {
             available
@@ -285,9 +329,12 @@ impl BoardCore {
         };
         let scale = self.config.time_scale.max(1e-6);
         self.lvds_seen_or_reported = true;
+        self.source.begin(now, &plan);
         self.streaming = Some(StreamState {
             t0: now,
             frame_period: Duration::from_secs_f64(plan.frame_period_s.max(0.0) / scale),
+            acquired: Duration::from_secs_f64(plan.acquired_s.max(0.0) / scale),
+            retry_at: None,
             flush_delay: Duration::from_secs_f64(self.config.flush_delay_s.max(0.0) / scale),
             frame_bytes: frame_bytes as u64,
             total_bytes: frames as usize * frame_bytes,
@@ -338,6 +385,8 @@ impl BoardCore {
         };
         let mut out = Vec::new();
         let mut ddr_full = false;
+        stream.retry_at = None;
+        let mut payload = [0u8; RAW_PAYLOAD_LEN];
         while stream.next_packet < stream.packets() && stream.due(stream.next_packet) <= now {
             let i = stream.next_packet;
             let start = i * RAW_PAYLOAD_LEN;
@@ -348,11 +397,21 @@ impl BoardCore {
                 ddr_full = true;
                 break;
             }
-            let mut datagram = Vec::with_capacity(HEADER_LEN + end - start);
+            let bytes = &mut payload[..end - start];
+            if !self.source.read(start, bytes) {
+                stream.retry_at = Some(now + SOURCE_RETRY);
+                break;
+            }
+            let late_ms = now.saturating_duration_since(stream.due(i)).as_secs_f64() * 1e3;
+            if late_ms > 1.0 {
+                self.stats.packets_late += 1;
+                self.stats.worst_late_ms = self.stats.worst_late_ms.max(late_ms);
+            }
+            let mut datagram = Vec::with_capacity(HEADER_LEN + bytes.len());
             DataPacket {
                 sequence: i as u32 + 1,
                 byte_offset: start as u64,
-                payload: &self.source.bytes[start..end],
+                payload: bytes,
             }
             .emit(&mut datagram);
             self.injector.push(datagram, &mut out);
@@ -372,7 +431,8 @@ impl BoardCore {
     /// When [`poll`](Self::poll) next has something to do.
     pub fn next_deadline(&self) -> Option<Instant> {
         if let Some(s) = &self.streaming {
-            return (s.next_packet < s.packets()).then(|| s.due(s.next_packet));
+            return (s.next_packet < s.packets())
+                .then(|| s.retry_at.unwrap_or_else(|| s.due(s.next_packet)));
         }
         match (self.recording_since, self.fpga) {
             (Some(since), Some(fpga)) if !self.lvds_seen_or_reported => Some(
@@ -443,7 +503,7 @@ impl DcaSimulator {
     pub fn spawn(
         addresses: &SimAddresses,
         config: CoreConfig,
-        source: Arc<AdcStream>,
+        source: Arc<dyn FrameSource>,
     ) -> Result<Self, SimError> {
         for (field, addr) in [
             ("board_config", addresses.board_config),
@@ -604,11 +664,12 @@ mod tests {
             StreamPlan {
                 frames: 3,
                 frame_period_s: 0.003,
+                acquired_s: 0.000_07,
             },
             t0,
         );
         // 3 × 8192 = 24 576 B = 16 full packets + 1 of 1280 B.
-        core.poll(t0 + Duration::from_micros(3100));
+        core.poll(t0 + Duration::from_micros(100));
         let (first, _) = drain(&mut core);
         assert_eq!(first.len(), 5, "packets wholly inside frame 0");
         core.poll(t0 + Duration::from_millis(10));
@@ -665,6 +726,7 @@ mod tests {
             StreamPlan {
                 frames: 5,
                 frame_period_s: 0.003,
+                acquired_s: 0.000_07,
             },
             t0,
         );

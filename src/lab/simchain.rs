@@ -88,9 +88,11 @@ impl SimChain {
             SensorEvent::Start {
                 frames,
                 frame_period_s,
+                acquired_s,
             } => trigger.start(StreamPlan {
                 frames,
                 frame_period_s,
+                acquired_s,
             }),
             // Frames the radar already produced still drain on the board's schedule.
             SensorEvent::Stop => {}

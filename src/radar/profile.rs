@@ -285,6 +285,21 @@ impl RadarProfile {
         self.frame_period_code as f64 * 5e-9
     }
 
+    /// From a frame's start to the end of its last chirp, when all its samples are on the LVDS
+    /// lanes: chirps per frame × (idle + ramp end), seconds.
+    pub fn frame_active_s(&self) -> f64 {
+        f64::from(self.chirp_loops * self.chirps_per_loop)
+            * (self.idle_time_s() + self.ramp_end_time_s())
+    }
+
+    /// From a frame's start to the middle of its first chirp's ADC window:
+    /// idle + ADC start + N/(2·f_s), seconds.
+    pub fn first_chirp_centre_s(&self) -> f64 {
+        self.idle_time_s()
+            + self.adc_start_time_s()
+            + f64::from(self.samples_per_chirp) / (2.0 * self.sample_rate_hz)
+    }
+
     /// Frequency of ADC sample 0: ramp start + slope · ADC start time, Hz.
     pub fn first_sample_frequency_hz(&self) -> f64 {
         self.ramp_start_frequency_hz() + self.slope_hz_per_s() * self.adc_start_time_s()

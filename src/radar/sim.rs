@@ -52,7 +52,12 @@ pub enum UnknownReply {
 /// What the radar did that other devices see.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SensorEvent {
-    Start { frames: u64, frame_period_s: f64 },
+    Start {
+        frames: u64,
+        frame_period_s: f64,
+        /// From a frame's start to the end of its chirps (the profile's `frame_active_s`).
+        acquired_s: f64,
+    },
     Stop,
 }
 
@@ -222,6 +227,7 @@ impl CliSimCore {
                             self.events.push(SensorEvent::Start {
                                 frames: u64::from(profile.frames),
                                 frame_period_s: profile.frame_period_s(),
+                                acquired_s: profile.frame_active_s(),
                             });
                         }
                         (vec![], Ok(()))
@@ -412,13 +418,20 @@ mod tests {
         {
             assert!(reply(&mut core, line).contains("Done"), "{line}");
         }
-        assert_eq!(
-            core.take_events(),
-            vec![SensorEvent::Start {
-                frames: 4000,
-                frame_period_s: 0.003
-            }]
-        );
+        match core.take_events()[..] {
+            [
+                SensorEvent::Start {
+                    frames: 4000,
+                    frame_period_s,
+                    acquired_s,
+                },
+            ] => {
+                // frameCfg 3 ms; profileCfg idle 10 µs + ramp end 60 µs, one chirp.
+                assert!((frame_period_s - 0.003).abs() < 1e-12);
+                assert!((acquired_s - 70e-6).abs() < 1e-12);
+            }
+            ref other => panic!("{other:?}"),
+        }
         assert!(reply(&mut core, "chirpCfg 0 0 0 0 0 0 0 1").contains("Error -58"));
         assert!(reply(&mut core, "sensorStart").contains("Error -54"));
         assert!(reply(&mut core, "sensorStop").contains("Done"));

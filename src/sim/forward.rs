@@ -141,6 +141,108 @@ fn f32v(p: [f64; 3]) -> [f32; 3] {
     p.map(|c| c as f32)
 }
 
+/// The scene's scatterers, prepared once, rendered at any antenna positions.
+pub struct ForwardModel {
+    scatterers: Scatterers,
+    pattern: Pattern,
+    occluder: Option<Occluder>,
+    plan: FrequencyPlan,
+    range_offset_m: f64,
+    full_zones: f32,
+    cutoff_zones: f32,
+    half_lambda0_m: f32,
+    inv_wavelength: Vec<f32>,
+    /// All surface objects as one mesh (the occluder is not part of the truth).
+    pub truth_mesh: TriMesh,
+}
+
+/// Per-thread accumulators of [`ForwardModel::render_position`].
+pub struct RenderScratch {
+    spec: Vec<ToneAccumulator>,
+    other: Vec<ToneAccumulator>,
+}
+
+impl ForwardModel {
+    /// Samples the scene's objects for antennas inside `view`.
+    pub fn new(scene: &Scene, view: &ViewRegion) -> Self {
+        let plan = scene.plan;
+        let lambda0_m = plan.first_wavelength_m();
+        let (scatterers, truth_mesh) = prepare(scene, view);
+        let set = &scene.settings;
+        Self {
+            scatterers,
+            pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
+            occluder: scene.occluder.clone(),
+            plan,
+            range_offset_m: scene.range_offset_m,
+            full_zones: set.specular_full_zones as f32,
+            cutoff_zones: set.specular_cutoff_zones as f32,
+            half_lambda0_m: (lambda0_m / 2.0) as f32,
+            inv_wavelength: (0..plan.samples_per_chirp)
+                .map(|k| (plan.frequency_hz(k) / SPEED_OF_LIGHT_M_PER_S) as f32)
+                .collect(),
+            truth_mesh,
+        }
+    }
+
+    /// Accumulators for positions with up to `rx_per_position` receivers.
+    pub fn scratch(&self, rx_per_position: usize) -> RenderScratch {
+        let acc = ToneAccumulator::new(&self.plan, self.range_offset_m);
+        RenderScratch {
+            spec: vec![acc.clone(); rx_per_position],
+            other: vec![acc; rx_per_position],
+        }
+    }
+
+    /// The noise-free chirps of one TX position and its receivers, written into `out`
+    /// (`rxs.len()` chirps of T samples, RX-minor). Returns the contributions summed.
+    pub fn render_position(
+        &self,
+        tx_m: [f64; 3],
+        rxs_m: &[[f64; 3]],
+        scratch: &mut RenderScratch,
+        out: &mut [Complex32],
+    ) -> u64 {
+        let ctx = Ctx {
+            s: &self.scatterers,
+            pattern: self.pattern,
+            occluder: self.occluder.as_ref(),
+            full_zones: self.full_zones,
+            cutoff_zones: self.cutoff_zones,
+            half_lambda0_m: self.half_lambda0_m,
+        };
+        let per = rxs_m.len();
+        if scratch.spec.len() < per {
+            *scratch = self.scratch(per);
+        }
+        let (spec, other) = (&mut scratch.spec[..per], &mut scratch.other[..per]);
+        spec.iter_mut()
+            .chain(other.iter_mut())
+            .for_each(ToneAccumulator::clear);
+        let rxs: Vec<[f32; 3]> = rxs_m.iter().map(|r| f32v(*r)).collect();
+        let count = ctx.position(f32v(tx_m), &rxs, spec, other);
+        let t = self.plan.samples_per_chirp;
+        for (k, chirp) in out.chunks_exact_mut(t).take(per).enumerate() {
+            chirp.fill(Complex32::new(0.0, 0.0));
+            spec[k].scale_by(&self.inv_wavelength);
+            spec[k].add_into(chirp);
+            other[k].add_into(chirp);
+            if let Some(occ) = &self.occluder
+                && let Some((factors, path_m)) = occ.reflection(&self.plan, tx_m, rxs_m[k])
+            {
+                add_sheet_reflection(&self.plan, self.range_offset_m, &factors, path_m, chirp);
+            }
+        }
+        count
+    }
+
+    /// Scatterer counts for [`SimStats`].
+    fn counts(&self) -> (usize, usize, usize, usize) {
+        let s = &self.scatterers;
+        (s.spec.len(), s.diff.len(), s.edges.len(), s.points.len())
+    }
+}
+
 /// Runs the forward model over every antenna of the scene's aperture.
 pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
     let started = std::time::Instant::now();
@@ -151,22 +253,9 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         .as_ref()
         .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone());
     let antennas = raster_antennas(&scene.aperture, &rx_channels, lambda0_m);
-    let view = view_region(&antennas);
-    let (scatterers, truth_mesh) = prepare(scene, &view);
-    let set = &scene.settings;
-    let ctx = Ctx {
-        s: &scatterers,
-        pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
-        occluder: scene.occluder.as_ref(),
-        full_zones: set.specular_full_zones as f32,
-        cutoff_zones: set.specular_cutoff_zones as f32,
-        half_lambda0_m: (lambda0_m / 2.0) as f32,
-    };
+    let model = ForwardModel::new(scene, &view_region(&antennas));
     let t = plan.samples_per_chirp;
     let n = antennas.tx_m.len();
-    let inv_wavelength: Vec<f32> = (0..t)
-        .map(|k| (plan.frequency_hz(k) / SPEED_OF_LIGHT_M_PER_S) as f32)
-        .collect();
     let mut samples = vec![Complex32::new(0.0, 0.0); n * t];
     let progress = Progress::new("simulate", n as u64, quiet);
     let per = antennas.per_position.max(1);
@@ -174,32 +263,15 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         .par_chunks_mut(t * per)
         .enumerate()
         .map_init(
-            || {
-                let acc = ToneAccumulator::new(&plan, scene.range_offset_m);
-                (vec![acc.clone(); per], vec![acc; per])
-            },
-            |(spec, other), (position, out)| {
-                spec.iter_mut()
-                    .chain(other.iter_mut())
-                    .for_each(ToneAccumulator::clear);
+            || model.scratch(per),
+            |scratch, (position, out)| {
                 let first = position * per;
-                let tx = antennas.tx_m[first];
-                let rxs: Vec<[f32; 3]> = antennas.rx_m[first..first + per]
-                    .iter()
-                    .map(|r| f32v(*r))
-                    .collect();
-                let count = ctx.position(f32v(tx), &rxs, spec, other);
-                for (k, chirp) in out.chunks_exact_mut(t).enumerate() {
-                    spec[k].scale_by(&inv_wavelength);
-                    spec[k].add_into(chirp);
-                    other[k].add_into(chirp);
-                    if let Some(occ) = ctx.occluder
-                        && let Some((factors, path_m)) =
-                            occ.reflection(&plan, tx, antennas.rx_m[first + k])
-                    {
-                        add_sheet_reflection(&plan, scene.range_offset_m, &factors, path_m, chirp);
-                    }
-                }
+                let count = model.render_position(
+                    antennas.tx_m[first],
+                    &antennas.rx_m[first..first + per],
+                    scratch,
+                    out,
+                );
                 progress.inc(per as u64);
                 count
             },
@@ -211,13 +283,14 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         Some((snr_db, seed)) => add_noise(&mut samples, t, snr_db, seed),
         None => 0.0,
     };
+    let (specular_samples, diffuse_samples, edge_samples, point_targets) = model.counts();
     let stats = SimStats {
         antennas: n,
-        triangles: truth_mesh.triangles.len(),
-        specular_samples: scatterers.spec.len(),
-        diffuse_samples: scatterers.diff.len(),
-        edge_samples: scatterers.edges.len(),
-        point_targets: scatterers.points.len(),
+        triangles: model.truth_mesh.triangles.len(),
+        specular_samples,
+        diffuse_samples,
+        edge_samples,
+        point_targets,
         contributions,
         noise_sigma,
         seconds: started.elapsed().as_secs_f64(),
@@ -234,7 +307,7 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
     SimOutput {
         capture,
         antennas,
-        truth_mesh,
+        truth_mesh: model.truth_mesh,
         stats,
     }
 }
@@ -266,15 +339,24 @@ fn add_noise(samples: &mut [Complex32], t: usize, snr_db: f64, seed: u64) -> f64
     samples
         .par_chunks_mut(t)
         .enumerate()
-        .for_each(|(i, chirp)| {
-            let mut rng = Rng::for_stream(seed, NOISE_STREAM, i as u64);
-            for s in chirp {
-                let (a, b) = rng.normal_pair();
-                s.re += (a * per_component) as f32;
-                s.im += (b * per_component) as f32;
-            }
-        });
+        .for_each(|(i, chirp)| add_noise_to_chirp(chirp, per_component, seed, i as u64));
     sigma
+}
+
+/// Adds complex Gaussian noise of `per_component_sigma` on I and on Q to one chirp, from the
+/// seeded stream `index` of the noise generator.
+pub fn add_noise_to_chirp(
+    chirp: &mut [Complex32],
+    per_component_sigma: f64,
+    seed: u64,
+    index: u64,
+) {
+    let mut rng = Rng::for_stream(seed, NOISE_STREAM, index);
+    for s in chirp {
+        let (a, b) = rng.normal_pair();
+        s.re += (a * per_component_sigma) as f32;
+        s.im += (b * per_component_sigma) as f32;
+    }
 }
 
 /// The rectangle that holds every TX and RX position (all lie in the aperture plane).
