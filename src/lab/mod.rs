@@ -11,6 +11,7 @@
 
 pub mod config;
 pub mod raw;
+pub mod scene_frames;
 pub mod simchain;
 
 pub use config::{LabConfig, LabConfigError, SimConfig};

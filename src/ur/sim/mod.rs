@@ -37,6 +37,9 @@ pub struct Faults {
     pub protocol_v1_only: bool,
 }
 
+/// The TCP pose at an instant, where the arm's motion decides it.
+pub type PoseOracle = Arc<dyn Fn(Instant) -> Option<[f64; 6]> + Send + Sync>;
+
 /// Where and how the simulator starts.
 #[derive(Debug, Clone, PartialEq)]
 pub struct UrSimConfig {
@@ -236,6 +239,24 @@ impl UrSim {
         let now_s = a.host_s(Instant::now());
         a.advance(now_s);
         a.clone()
+    }
+
+    /// A function giving the TCP pose at any instant the arm's motion already decides
+    /// ([`ArmState::pose_at`]): what a simulated radar riding on the flange sees from.
+    pub fn pose_oracle(&self) -> PoseOracle {
+        let arm = self.arm.clone();
+        Arc::new(move |at: Instant| {
+            let mut a = arm.lock().unwrap_or_else(|p| p.into_inner());
+            let now_s = a.host_s(Instant::now());
+            a.advance(now_s);
+            // Instants before boot are clamped to it by `host_s`; measure them signed.
+            let t_s = if at >= a.boot {
+                at.duration_since(a.boot).as_secs_f64()
+            } else {
+                -a.boot.duration_since(at).as_secs_f64()
+            };
+            a.pose_at(t_s, now_s)
+        })
     }
 
     /// Changes the faults in flight.

@@ -1,6 +1,7 @@
 //! The simulated arm's state, advanced in time: modes, safety, the TCP pose under a `movel`'s
 //! trapezoidal velocity profile, and the controller clock.
 
+use std::collections::VecDeque;
 use std::time::Instant;
 
 use crate::ur::dashboard::{RobotMode, SafetyStatus};
@@ -102,7 +103,12 @@ pub struct ArmState {
     /// The running program's RTDE watchdog.
     pub watchdog: Option<Watchdog>,
     pub watchdog_trips: u64,
+    /// Recent finished or cut moves with the host second each ended, oldest first.
+    pub track: VecDeque<(LinearMove, f64)>,
 }
+
+/// Finished moves kept for [`ArmState::pose_at`].
+const TRACK_LEN: usize = 64;
 
 /// `rtde_set_watchdog(variable, min_frequency, "stop")` of the running program.
 #[derive(Debug, Clone, PartialEq)]
@@ -133,7 +139,39 @@ impl ArmState {
             protective_stop: None,
             watchdog: None,
             watchdog_trips: 0,
+            track: VecDeque::new(),
         }
+    }
+
+    /// Ends the running move at `end_s` and files it in the track.
+    fn close_motion(&mut self, end_s: f64) {
+        if let Some(m) = self.motion.take() {
+            if self.track.len() == TRACK_LEN {
+                self.track.pop_front();
+            }
+            self.track.push_back((m, end_s));
+        }
+    }
+
+    /// The TCP pose at host second `t_s`, given the state advanced to `now_s`: from the track
+    /// for the past, from the running move for the rest of that move (as planned: a stop not
+    /// yet issued is not foreseen), and `None` for a time that no known motion decides yet.
+    pub fn pose_at(&self, t_s: f64, now_s: f64) -> Option<[f64; 6]> {
+        if t_s > now_s {
+            let m = self.motion.as_ref()?;
+            return (t_s <= m.started_s + m.duration_s()).then(|| m.sample(t_s).0);
+        }
+        let running = self.motion.iter().map(|m| (m, f64::INFINITY));
+        let finished = self.track.iter().rev().map(|(m, end)| (m, *end));
+        let mut oldest = None;
+        for (m, end_s) in running.chain(finished) {
+            if m.started_s <= t_s {
+                return Some(m.sample(t_s.min(end_s)).0);
+            }
+            oldest = Some(m.from);
+        }
+        // Before every known move: where the oldest one started, or here if none ever did.
+        Some(oldest.unwrap_or(self.pose))
     }
 
     /// Applies an RTDE input package.
@@ -197,6 +235,7 @@ impl ArmState {
         if self.robot_mode != RobotMode::Running || self.safety.is_stop() {
             return false;
         }
+        self.close_motion(now_s);
         self.motion = Some(LinearMove {
             from: self.pose,
             to,
@@ -213,7 +252,7 @@ impl ArmState {
     pub fn stop(&mut self, now: Instant) {
         let now_s = self.host_s(now);
         self.advance(now_s);
-        self.motion = None;
+        self.close_motion(now_s);
         self.watchdog = None;
         self.speed = [0.0; 6];
         self.target_pose = self.pose;
@@ -231,7 +270,7 @@ impl ArmState {
                 self.pose = pose;
                 self.target_pose = pose;
                 self.speed = [0.0; 6];
-                self.motion = None;
+                self.close_motion(deadline);
                 self.watchdog = None;
                 self.watchdog_trips += 1;
                 return;
@@ -245,7 +284,7 @@ impl ArmState {
             self.pose = pose;
             self.target_pose = pose;
             self.speed = [0.0; 6];
-            self.motion = None;
+            self.close_motion(m.started_s + after_s);
             self.safety = SafetyStatus::ProtectiveStop;
             self.protective_stop = None;
             return;
@@ -257,7 +296,7 @@ impl ArmState {
             // The program ends with its move, and its watchdog with it.
             self.pose = m.to;
             self.speed = [0.0; 6];
-            self.motion = None;
+            self.close_motion(m.started_s + m.duration_s());
             self.watchdog = None;
         }
     }
@@ -266,6 +305,37 @@ impl ArmState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pose_at_reads_the_past_from_the_track_and_the_running_move_ahead() {
+        let mut arm = ArmState::new([0.0; 6]);
+        let boot = arm.boot;
+        let at = |s: f64| boot + std::time::Duration::from_secs_f64(s);
+        assert!(arm.start_move([0.1, 0.0, 0.0, 0.0, 0.0, 0.0], 0.1, 1.0, at(1.0)));
+        arm.advance(5.0);
+        assert!(arm.start_move([0.1, 0.2, 0.0, 0.0, 0.0, 0.0], 0.1, 1.0, at(6.0)));
+        arm.advance(6.5);
+        let now_s = 6.5;
+        assert_eq!(arm.pose_at(0.5, now_s), Some([0.0; 6]), "before any move");
+        let first = arm.track[0].0.clone();
+        assert_eq!(arm.pose_at(1.5, now_s), Some(first.sample(1.5).0));
+        assert_eq!(
+            arm.pose_at(5.5, now_s).map(|p| p[0]),
+            Some(0.1),
+            "resting between"
+        );
+        let second = arm.motion.clone().unwrap();
+        assert_eq!(
+            arm.pose_at(7.0, now_s),
+            Some(second.sample(7.0).0),
+            "planned ahead"
+        );
+        assert_eq!(
+            arm.pose_at(20.0, now_s),
+            None,
+            "after the move nothing is decided"
+        );
+    }
 
     #[test]
     fn a_movel_follows_its_trapezoid() {
