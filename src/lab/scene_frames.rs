@@ -178,7 +178,7 @@ impl FrameSource for SceneFrames {
         }
         for (i, b) in buf.iter_mut().enumerate() {
             let at = offset + i;
-            let frame = &stream.ready[(at / fb) as usize - stream.first as usize];
+            let frame = &stream.ready[(at / fb) - stream.first as usize];
             *b = frame[at % fb];
         }
         // Bytes are asked in order: frames before this read's first one are done with.

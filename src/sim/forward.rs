@@ -172,7 +172,7 @@ impl ForwardModel {
         Self {
             scatterers,
             pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
-            occluder: scene.occluder.clone(),
+            occluder: scene.occluder,
             plan,
             range_offset_m: scene.range_offset_m,
             full_zones: set.specular_full_zones as f32,
