@@ -23,6 +23,7 @@ pub mod pose;
 
 use nalgebra::Isometry3;
 
+pub use crate::dca1000::packet::PacketArrival;
 use crate::ur::clock::{ClockConfig, ClockFit, ClockMapper};
 
 /// The `[align]` section of `lab.toml`.
@@ -127,15 +128,6 @@ pub struct FrameTiming {
     pub acquired_s: f64,
     /// λ0 of the first ADC sample, metres.
     pub wavelength_m: f64,
-}
-
-/// One raw-mode data packet as received.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct PacketArrival {
-    pub byte_offset: u64,
-    pub payload_len: u32,
-    /// Host monotonic time, seconds since the scan's epoch.
-    pub host_s: f64,
 }
 
 /// One RTDE sample, reduced to what alignment needs.

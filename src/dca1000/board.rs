@@ -3,14 +3,16 @@
 //! [`record_frames`] starts the board's recording, then starts the radar through a callback (so
 //! this module needs nothing from the radar's CLI), reassembles the stream into frames, hands
 //! them to a sink in order, and stops the recording. It notices a silent radar within
-//! `first_frame_margin` of the moment the first packet was due.
+//! `first_frame_margin` of the moment the first packet was due. It keeps every data packet's
+//! byte offset and host arrival time, which time alignment fits the radar's clock to
+//! ([`crate::align`]), and it ends early when the caller says the radar has stopped.
 
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
 use super::command::{AsyncEvent, CodecError, Command, FpgaConfig, FpgaVersion, PacketConfig};
-use super::packet::RAW_PAYLOAD_LEN;
+use super::packet::{DataPacket, PacketArrival, RAW_PAYLOAD_LEN};
 use super::reassembler::{Frame, Reassembler, StreamStats};
 
 /// Why a board operation failed.
@@ -51,6 +53,13 @@ pub enum BoardError {
     },
 }
 
+/// One datagram from the data port and when the host received it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Datagram {
+    pub bytes: Bytes,
+    pub received: Instant,
+}
+
 /// Receive-side counters the transport keeps besides the reassembler's.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ReceiveCounters {
@@ -73,7 +82,7 @@ pub trait CaptureBoard {
     fn start_record(&mut self) -> Result<(), BoardError>;
     fn stop_record(&mut self) -> Result<(), BoardError>;
     /// The next data datagram, or `None` after `timeout`.
-    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Bytes>, BoardError>;
+    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Datagram>, BoardError>;
     /// Async status events received since the last call.
     fn take_events(&mut self) -> Vec<AsyncEvent>;
     fn counters(&self) -> ReceiveCounters;
@@ -125,6 +134,8 @@ pub struct RecordPlan {
     pub first_frame_margin: Duration,
     /// The FPGA's idle flush of a partial payload (2 s), waited for when data is missing.
     pub stop_delay: Duration,
+    /// Arrival times are seconds since this instant.
+    pub epoch: Instant,
 }
 
 /// What a recording produced besides its frames.
@@ -141,14 +152,20 @@ pub struct CaptureReport {
     /// From the end of `sensorStart` to the first data packet, milliseconds.
     pub first_packet_ms: Option<f64>,
     pub duration_s: f64,
+    /// Every data packet that parsed, in arrival order (not in `report.json`).
+    #[serde(skip)]
+    pub arrivals: Vec<PacketArrival>,
 }
 
 /// Records `plan.frames` frames: `RECORD_START`, `start_sensor`, receive, `RECORD_STOP`.
-/// Every frame goes to `sink` in order, complete or flagged.
+/// Every frame goes to `sink` in order, complete or flagged. `finished` is asked between
+/// datagrams: once it says the radar has stopped, packets still in flight are awaited for
+/// [`LINGER`] (or three frame periods, if longer) and the recording ends there.
 pub fn record_frames(
     board: &mut dyn CaptureBoard,
     plan: &RecordPlan,
     start_sensor: &mut dyn FnMut() -> Result<(), String>,
+    finished: &mut dyn FnMut() -> bool,
     sink: &mut dyn FnMut(&Frame) -> std::io::Result<()>,
 ) -> Result<CaptureReport, BoardError> {
     let started = Instant::now();
@@ -176,7 +193,13 @@ pub fn record_frames(
         period.mul_f64(plan.frames as f64) + plan.stop_delay + Duration::from_millis(500);
     let mut end_deadline = sensor_at + first_due + plan.first_frame_margin + run_time;
     let mut emitted = 0u64;
+    let mut stopped = false;
     while emitted < plan.frames {
+        if !stopped && finished() {
+            stopped = true;
+            let linger = LINGER.max(period.mul_f64(3.0));
+            end_deadline = end_deadline.min(Instant::now() + linger);
+        }
         let now = Instant::now();
         let deadline = if report.first_packet_ms.is_none() {
             first_deadline.min(end_deadline)
@@ -197,10 +220,19 @@ pub fn record_frames(
         if let Some(datagram) = board.recv_datagram(wait)? {
             if report.first_packet_ms.is_none() {
                 report.first_packet_ms = Some(sensor_at.elapsed().as_secs_f64() * 1e3);
-                end_deadline = Instant::now() + run_time;
+                if !stopped {
+                    end_deadline = Instant::now() + run_time;
+                }
+            }
+            if let Ok(p) = DataPacket::parse(&datagram.bytes) {
+                report.arrivals.push(PacketArrival {
+                    byte_offset: p.byte_offset,
+                    payload_len: p.payload.len() as u32,
+                    host_s: signed_seconds(datagram.received, plan.epoch),
+                });
             }
             // A malformed datagram is counted by the reassembler and otherwise ignored.
-            reassembler.push(&datagram).ok();
+            reassembler.push(&datagram.bytes).ok();
             emitted += hand_out(&mut reassembler, &mut report, sink)?;
         }
         report.events.extend(board.take_events());
@@ -212,6 +244,18 @@ pub fn record_frames(
     report.receive = board.counters();
     report.duration_s = started.elapsed().as_secs_f64();
     Ok(report)
+}
+
+/// How long packets in flight are awaited after the radar stopped.
+pub const LINGER: Duration = Duration::from_millis(100);
+
+/// `at − epoch` in seconds, negative when `at` is earlier.
+pub fn signed_seconds(at: Instant, epoch: Instant) -> f64 {
+    if at >= epoch {
+        at.duration_since(epoch).as_secs_f64()
+    } else {
+        -epoch.duration_since(at).as_secs_f64()
+    }
 }
 
 /// Passes every ready frame to the sink; returns how many.

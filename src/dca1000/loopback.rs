@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
-use super::board::{BoardError, CaptureBoard, Exchange, ReceiveCounters};
+use super::board::{BoardError, CaptureBoard, Datagram, Exchange, ReceiveCounters};
 use super::command::{AsyncEvent, Command, FpgaConfig, FpgaVersion, PacketConfig, Response};
 use super::sim::{AdcStream, BoardCore, CoreConfig, Output, SensorTrigger, SimStats, TriggerMsg};
 
@@ -51,6 +51,7 @@ impl LoopbackBoard {
         while let Ok(msg) = self.triggers.try_recv() {
             match msg {
                 TriggerMsg::Start(plan) => self.core.sensor_start(plan, Instant::now()),
+                TriggerMsg::Stop => self.core.sensor_stop(Instant::now()),
             }
         }
         self.core.poll(Instant::now());
@@ -103,12 +104,15 @@ impl CaptureBoard for LoopbackBoard {
         self.expect_ok(Command::RecordStop, "RECORD_STOP")
     }
 
-    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Bytes>, BoardError> {
+    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Datagram>, BoardError> {
         let until = Instant::now() + timeout;
         loop {
             self.pump();
             if let Some(d) = self.data.pop_front() {
-                return Ok(Some(Bytes::from(d)));
+                return Ok(Some(Datagram {
+                    bytes: Bytes::from(d),
+                    received: Instant::now(),
+                }));
             }
             let now = Instant::now();
             if now >= until {
@@ -169,6 +173,7 @@ mod tests {
             frame_period_s: 0.003,
             first_frame_margin: Duration::from_millis(500),
             stop_delay: Duration::from_secs(2),
+            epoch: Instant::now(),
         };
         let mut stream = Vec::new();
         let report = record_frames(
@@ -182,6 +187,7 @@ mod tests {
                 });
                 Ok(())
             },
+            &mut || false,
             &mut |f| {
                 stream.extend_from_slice(&f.data);
                 Ok(())

@@ -25,6 +25,15 @@ pub enum PacketError {
     TooLong { len: usize },
 }
 
+/// Where a received data packet sat in the stream and when it arrived.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PacketArrival {
+    pub byte_offset: u64,
+    pub payload_len: u32,
+    /// Host monotonic time, seconds since the recording's epoch.
+    pub host_s: f64,
+}
+
 /// A checked view of one data packet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DataPacket<'a> {

@@ -342,6 +342,24 @@ impl BoardCore {
         });
     }
 
+    /// The radar stopped at `now`: no frame starts after it; frames that started before it
+    /// finish acquiring and drain on schedule.
+    pub fn sensor_stop(&mut self, now: Instant) {
+        if let Some(s) = self.streaming.as_mut() {
+            let elapsed = now.saturating_duration_since(s.t0).as_secs_f64();
+            let period = s.frame_period.as_secs_f64();
+            let started = if period > 0.0 {
+                (elapsed / period).floor() as u64 + 1
+            } else {
+                u64::MAX
+            };
+            let cap = started.saturating_mul(s.frame_bytes);
+            s.total_bytes = s
+                .total_bytes
+                .min(usize::try_from(cap).unwrap_or(usize::MAX));
+        }
+    }
+
     fn stop_stream(&mut self) {
         if self.streaming.take().is_some() {
             let mut out = Vec::new();
@@ -473,6 +491,7 @@ pub struct SimAddresses {
 
 pub(crate) enum TriggerMsg {
     Start(StreamPlan),
+    Stop,
 }
 
 /// A handle the radar simulator uses to start and stop the board's stream.
@@ -486,6 +505,11 @@ impl SensorTrigger {
 
     pub fn start(&self, plan: StreamPlan) {
         self.0.send(TriggerMsg::Start(plan)).ok();
+    }
+
+    /// The radar stopped (`sensorStop`): frames it already acquired still drain.
+    pub fn stop(&self) {
+        self.0.send(TriggerMsg::Stop).ok();
     }
 }
 
@@ -606,6 +630,7 @@ fn run(
         while let Ok(msg) = triggers.try_recv() {
             match msg {
                 TriggerMsg::Start(plan) => core.sensor_start(plan, Instant::now()),
+                TriggerMsg::Stop => core.sensor_stop(Instant::now()),
             }
         }
         core.poll(Instant::now());
@@ -688,6 +713,30 @@ mod tests {
             replies[1].status,
             AsyncEvent::encode(&[AsyncEvent::RecordCompleted])
         );
+    }
+
+    #[test]
+    fn a_sensor_stop_ends_the_stream_after_the_frames_already_started() {
+        let mut core = BoardCore::new(CoreConfig::default(), source(10));
+        let t0 = Instant::now();
+        core.handle_command(&Command::ConfigFpgaGen(FpgaConfig::default()).encode(), t0);
+        core.handle_command(&Command::RecordStart.encode(), t0);
+        drain(&mut core);
+        let plan = StreamPlan {
+            frames: 10,
+            frame_period_s: 0.003,
+            acquired_s: 0.000_07,
+        };
+        core.sensor_start(plan, t0);
+        // Stopped 10.5 ms in: frames 0..=3 started, 4 × 8192 B = 22 full packets + 736 B.
+        core.sensor_stop(t0 + Duration::from_micros(10_500));
+        core.poll(t0 + Duration::from_secs(5));
+        let (data, _) = drain(&mut core);
+        let bytes: usize = data
+            .iter()
+            .map(|d| DataPacket::parse(d).unwrap().payload.len())
+            .sum();
+        assert_eq!((data.len(), bytes), (23, 4 * 8192));
     }
 
     #[test]

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use socket2::{Domain, Protocol, Socket, Type};
 
-use super::board::{BoardError, CaptureBoard, Exchange, ReceiveCounters};
+use super::board::{BoardError, CaptureBoard, Datagram, Exchange, ReceiveCounters};
 use super::command::{AsyncEvent, Command, FpgaConfig, FpgaVersion, PacketConfig, Response};
 use super::samples::IqOrder;
 use crate::netio::is_would_block;
@@ -133,7 +133,7 @@ pub struct UdpBoard {
     control: UdpSocket,
     board_control: SocketAddr,
     response_timeout: Duration,
-    data: Receiver<Bytes>,
+    data: Receiver<Datagram>,
     data_addr: SocketAddr,
     events: Vec<AsyncEvent>,
     counters: Arc<SharedCounters>,
@@ -279,7 +279,7 @@ impl CaptureBoard for UdpBoard {
         self.expect_ok(Command::RecordStop, "RECORD_STOP")
     }
 
-    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Bytes>, BoardError> {
+    fn recv_datagram(&mut self, timeout: Duration) -> Result<Option<Datagram>, BoardError> {
         match self.data.recv_timeout(timeout) {
             Ok(d) => Ok(Some(d)),
             Err(RecvTimeoutError::Timeout) => Ok(None),
@@ -330,7 +330,7 @@ impl Drop for UdpBoard {
 fn receive(
     socket: UdpSocket,
     board_ip: Ipv4Addr,
-    queue: SyncSender<Bytes>,
+    queue: SyncSender<Datagram>,
     stop: Arc<AtomicBool>,
     counters: Arc<SharedCounters>,
 ) {
@@ -345,7 +345,11 @@ fn receive(
             counters.foreign.fetch_add(1, Ordering::Relaxed);
             continue;
         }
-        match queue.try_send(Bytes::copy_from_slice(&buf[..n])) {
+        let datagram = Datagram {
+            bytes: Bytes::copy_from_slice(&buf[..n]),
+            received: Instant::now(),
+        };
+        match queue.try_send(datagram) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) => {
                 counters.queue_drops.fetch_add(1, Ordering::Relaxed);

@@ -130,6 +130,7 @@ fn run(
             Duration::from_secs(u64::from(d.fpga.timer_s))
         },
         stop_delay: Duration::from_secs_f64(d.stop_delay_s),
+        epoch: std::time::Instant::now(),
     };
     let progress = Progress::new("capture", job.frames, job.quiet);
     let mut start_sensor = || match radar.as_deref_mut() {
@@ -140,7 +141,7 @@ fn run(
         progress.inc(1);
         writer.write_all(&frame.data)
     };
-    let recorded = record_frames(board, &plan, &mut start_sensor, &mut sink);
+    let recorded = record_frames(board, &plan, &mut start_sensor, &mut || false, &mut sink);
     let flushed = writer.flush().and_then(|()| writer.get_ref().sync_all());
     progress.finish();
     report.capture = recorded?;

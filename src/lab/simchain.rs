@@ -94,8 +94,7 @@ impl SimChain {
                 frame_period_s,
                 acquired_s,
             }),
-            // Frames the radar already produced still drain on the board's schedule.
-            SensorEvent::Stop => {}
+            SensorEvent::Stop => trigger.stop(),
         });
         let cli = CliSimCore::new(lab.sim.unknown_reply, lab.sim.cli_faults.clone());
         let radar =
