@@ -2,6 +2,7 @@
 //! the figure it checks.
 
 use std::net::SocketAddr;
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use mmnormd::ur::clock::{ClockConfig, ClockMapper};
@@ -71,7 +72,9 @@ fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
     let (ts, pose) = (robot.timestamp_index(), robot.pose_index());
     let mut total = 0;
     for row in &plan.rows {
-        let record = robot.drive_row(row, &spec).unwrap();
+        let record = robot
+            .drive_row(row, &spec, &AtomicBool::new(false))
+            .unwrap();
         assert_eq!(record.outcome, RowOutcome::Completed);
         assert_eq!(record.gaps, 0);
         let times = controller_times(&record.samples, ts);
@@ -253,7 +256,9 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
     let spec = small_spec();
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
     // Move 0 is the approach to row 0; move 1 is row 0 itself.
-    let record = robot.drive_row(&plan.rows[0], &spec).unwrap();
+    let record = robot
+        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+        .unwrap();
     let RowOutcome::SafetyStop {
         safety,
         at_controller_s,
@@ -282,7 +287,7 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
         SafetyStatus::ProtectiveStop
     );
     assert!(matches!(
-        robot.drive_row(&plan.rows[1], &spec),
+        robot.drive_row(&plan.rows[1], &spec, &AtomicBool::new(false)),
         Err(RobotError::NotReady { .. })
     ));
 }
@@ -307,7 +312,9 @@ fn local_mode_is_a_clear_error() {
     let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
     let spec = small_spec();
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
-    let err = robot.drive_row(&plan.rows[0], &spec).unwrap_err();
+    let err = robot
+        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+        .unwrap_err();
     assert!(err.to_string().contains("Remote Control"), "{err}");
     assert_eq!(sim.arm().moves_started, 0);
 }
@@ -427,7 +434,9 @@ fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
     {
         let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
-        robot.drive_row(&plan.rows[0], &spec).unwrap();
+        robot
+            .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+            .unwrap();
         // Start row 1's approach and the row itself by hand, then die without kicking.
         let row = &plan.rows[1];
         let mut script = std::net::TcpStream::connect(sim.script_addr()).unwrap();

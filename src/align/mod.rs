@@ -48,6 +48,8 @@ pub struct AlignConfig {
     pub max_pose_gap_s: f64,
     /// Bin of the lower-envelope fits, seconds.
     pub fit_bin_s: f64,
+    /// The radar's internal round-trip range offset written into the capture, metres (TI: 0.15).
+    pub range_offset_m: f64,
 }
 
 impl Default for AlignConfig {
@@ -64,6 +66,7 @@ impl Default for AlignConfig {
             min_spacing_wavelengths: 3.0 / 16.0,
             max_pose_gap_s: 0.010,
             fit_bin_s: 0.2,
+            range_offset_m: 0.15,
         }
     }
 }
@@ -89,6 +92,7 @@ impl AlignConfig {
         }
         finite("pipeline_latency_s", &[self.pipeline_latency_s])?;
         finite("sync_offset_s", &[self.sync_offset_s])?;
+        finite("range_offset_m", &[self.range_offset_m])?;
         if !(self.pipeline_latency_s >= 0.0 && self.pipeline_latency_s < 1.0) {
             return Err(format!(
                 "align.pipeline_latency_s = {} must lie in [0, 1)",

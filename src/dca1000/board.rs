@@ -197,6 +197,7 @@ pub fn record_frames(
     while emitted < plan.frames {
         if !stopped && finished() {
             stopped = true;
+            reassembler.end_early();
             let linger = LINGER.max(period.mul_f64(3.0));
             end_deadline = end_deadline.min(Instant::now() + linger);
         }

@@ -381,6 +381,12 @@ impl Reassembler {
         self.ready.push_back(frame);
     }
 
+    /// The radar stopped before the expected count: the recording ends with the data that
+    /// arrives, and [`finish`](Self::finish) neither pads nor counts the frames never made.
+    pub fn end_early(&mut self) {
+        self.expected_frames = None;
+    }
+
     /// Ends the recording: hands out every pending frame (and, with `expected_frames`, every
     /// frame up to it) and computes the final lost count over the span of sequence numbers the
     /// recording covers. Returns the final counters; frames remain available to

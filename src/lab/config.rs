@@ -1,21 +1,191 @@
 //! `lab.toml`: the lab's devices. Unknown keys are refused; `validate` runs at load time and its
 //! errors name the field and the value. Relative paths are relative to the config file.
 
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
 
+use crate::align::AlignConfig;
 use crate::dca1000::fault::FaultConfig;
 use crate::dca1000::udp::Dca1000Config;
 use crate::radar::RadarConfig;
 use crate::radar::sim::{CliFaults, UnknownReply};
+use crate::recon::ReconConfig;
+use crate::ur::motion::ScanSpec;
 
 /// The whole config file.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LabConfig {
+    /// Start the simulated lab in-process (the UR5e, radar CLI and DCA1000 simulators) and
+    /// reach it through the real transports at the addresses below.
+    pub simulate: bool,
     pub radar: RadarConfig,
     pub dca1000: Dca1000Config,
-    /// The simulated devices (`mmnormd sim radar`); ignored by real hardware.
+    pub robot: RobotConfig,
+    /// The default raster; a `scan` request may override parts of it.
+    pub scan: ScanSpec,
+    pub align: AlignConfig,
+    pub recording: RecordingConfig,
+    pub reconstruction: ReconConfig,
+    pub control: ControlConfig,
+    /// The simulated devices; ignored by real hardware.
     pub sim: SimConfig,
+}
+
+/// The `[robot]` section: where the UR controller listens.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RobotConfig {
+    pub host: IpAddr,
+    pub dashboard_port: u16,
+    pub script_port: u16,
+    pub rtde_port: u16,
+    /// 500 on e-Series, 125 on CB3.
+    pub rtde_frequency_hz: f64,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        Self {
+            host: IpAddr::V4(Ipv4Addr::new(192, 168, 1, 10)),
+            dashboard_port: 29999,
+            script_port: 30002,
+            rtde_port: 30004,
+            rtde_frequency_hz: 500.0,
+        }
+    }
+}
+
+impl RobotConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.rtde_frequency_hz.is_finite()
+            && self.rtde_frequency_hz > 0.0
+            && self.rtde_frequency_hz <= 500.0)
+        {
+            return Err(format!(
+                "robot.rtde_frequency_hz = {} must lie in (0, 500]",
+                self.rtde_frequency_hz
+            ));
+        }
+        Ok(())
+    }
+
+    pub fn addr(&self, port: u16) -> SocketAddr {
+        SocketAddr::new(self.host, port)
+    }
+}
+
+/// The `[recording]` section: where scans go and when a row is scanned again.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordingConfig {
+    /// One folder per scan is made here.
+    pub data_dir: PathBuf,
+    /// A row whose flagged frames exceed this fraction is scanned again.
+    pub max_frame_loss: f64,
+    /// Rescans of a row before the scan reports it and goes on.
+    pub max_row_retries: u32,
+    /// MCAP chunks close after this much data time, seconds (crash loss is at most one chunk).
+    pub chunk_seconds: f64,
+    /// … or this many uncompressed bytes, whichever comes first.
+    pub chunk_bytes: u64,
+}
+
+impl Default for RecordingConfig {
+    fn default() -> Self {
+        Self {
+            data_dir: PathBuf::from("captures"),
+            max_frame_loss: 0.01,
+            max_row_retries: 2,
+            chunk_seconds: 0.25,
+            chunk_bytes: 1 << 20,
+        }
+    }
+}
+
+impl RecordingConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.max_frame_loss) {
+            return Err(format!(
+                "recording.max_frame_loss = {} must lie in 0..=1",
+                self.max_frame_loss
+            ));
+        }
+        if !(self.chunk_seconds.is_finite()
+            && self.chunk_seconds > 0.0
+            && self.chunk_seconds <= 0.5)
+        {
+            return Err(format!(
+                "recording.chunk_seconds = {} must lie in (0, 0.5]",
+                self.chunk_seconds
+            ));
+        }
+        if !(4096..=64 << 20).contains(&self.chunk_bytes) {
+            return Err(format!(
+                "recording.chunk_bytes = {} must lie in 4096..=67108864",
+                self.chunk_bytes
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The `[control]` section: the TCP control port.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControlConfig {
+    pub bind: SocketAddr,
+    /// Required of every client when set; a non-loopback `bind` needs it.
+    pub token: Option<String>,
+    pub max_clients: usize,
+}
+
+impl Default for ControlConfig {
+    fn default() -> Self {
+        Self {
+            bind: SocketAddr::from(([127, 0, 0, 1], 7878)),
+            token: None,
+            max_clients: 256,
+        }
+    }
+}
+
+impl ControlConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !self.bind.ip().is_loopback() && self.token.as_deref().is_none_or(str::is_empty) {
+            return Err(format!(
+                "control.bind = {} is not a loopback address; set control.token so that clients must present it",
+                self.bind
+            ));
+        }
+        if self.max_clients == 0 {
+            return Err("control.max_clients = 0 must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// `[sim.robot]`: the simulated UR5e's clock and stream faults.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimRobotConfig {
+    /// Controller clock against the host's, seconds and ppm.
+    pub clock_offset_s: f64,
+    pub clock_drift_ppm: f64,
+    /// Each RTDE package leaves up to this late (uniform), milliseconds.
+    pub jitter_ms: f64,
+    pub seed: u64,
+}
+
+impl Default for SimRobotConfig {
+    fn default() -> Self {
+        Self {
+            clock_offset_s: 12_345.678,
+            clock_drift_ppm: 30.0,
+            jitter_ms: 0.5,
+            seed: 0,
+        }
+    }
 }
 
 /// The `[sim]` section.
@@ -40,6 +210,7 @@ pub struct SimConfig {
     pub ddr_full_at_frame: Option<u64>,
     pub dca1000_faults: FaultConfig,
     pub cli_faults: CliFaults,
+    pub robot: SimRobotConfig,
 }
 
 impl Default for SimConfig {
@@ -56,6 +227,7 @@ impl Default for SimConfig {
             ddr_full_at_frame: None,
             dca1000_faults: FaultConfig::default(),
             cli_faults: CliFaults::default(),
+            robot: SimRobotConfig::default(),
         }
     }
 }
@@ -100,6 +272,22 @@ impl SimConfig {
             if !(0.0..=1.0).contains(&p) {
                 return Err(format!("sim.cli_faults.{name} = {p} must lie in 0..=1"));
             }
+        }
+        let r = &self.robot;
+        for (name, v) in [
+            ("clock_offset_s", r.clock_offset_s),
+            ("clock_drift_ppm", r.clock_drift_ppm),
+            ("jitter_ms", r.jitter_ms),
+        ] {
+            if !v.is_finite() {
+                return Err(format!("sim.robot.{name} = {v} is not a finite number"));
+            }
+        }
+        if !(0.0..=100.0).contains(&r.jitter_ms) {
+            return Err(format!(
+                "sim.robot.jitter_ms = {} must lie in 0..=100",
+                r.jitter_ms
+            ));
         }
         Ok(())
     }
@@ -149,6 +337,7 @@ impl LabConfig {
         if let Some(c) = config.sim.capture_dir.as_mut() {
             resolve(c);
         }
+        resolve(&mut config.recording.data_dir);
         config
             .validate()
             .map_err(|message| LabConfigError::Invalid {
@@ -158,10 +347,18 @@ impl LabConfig {
         Ok(config)
     }
 
-    /// Checks every section.
+    /// Checks every section (the scan's speed against the radar profile is checked where the
+    /// profile is read, [`crate::lab::scan::ScanSetup::new`]).
     pub fn validate(&self) -> Result<(), String> {
         self.radar.validate()?;
         self.dca1000.validate()?;
+        self.robot.validate()?;
+        self.align.validate()?;
+        self.recording.validate()?;
+        self.reconstruction
+            .validate()
+            .map_err(|e| format!("reconstruction.{e}"))?;
+        self.control.validate()?;
         self.sim.validate()
     }
 }

@@ -10,8 +10,11 @@
 //! module only sequences them.
 
 pub mod config;
+pub mod devices;
 pub mod raw;
+pub mod scan;
 pub mod scene_frames;
 pub mod simchain;
+pub mod simlab;
 
 pub use config::{LabConfig, LabConfigError, SimConfig};

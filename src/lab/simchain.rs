@@ -10,7 +10,7 @@ use super::config::LabConfig;
 use crate::capture::read_capture_dir;
 use crate::dca1000::samples::FrameLayout;
 use crate::dca1000::sim::{
-    AdcStream, CoreConfig, DcaSimulator, SimAddresses, SimStats, StreamPlan,
+    AdcStream, CoreConfig, DcaSimulator, FrameSource, SimAddresses, SimStats, StreamPlan,
 };
 use crate::radar::RadarProfile;
 use crate::radar::sim::{CliSimCore, CliSimStats, CliSimulator, SensorEvent};
@@ -66,7 +66,7 @@ impl SimChain {
     /// `link` (or `sim.radar_link`).
     pub fn start(
         lab: &LabConfig,
-        source: Arc<AdcStream>,
+        source: Arc<dyn FrameSource>,
         link: Option<&Path>,
     ) -> Result<Self, SimChainError> {
         let d = &lab.dca1000;

@@ -24,6 +24,7 @@ pub mod lattice;
 pub mod mask;
 pub mod near_echo;
 pub mod normals;
+pub mod output;
 pub mod pipeline;
 pub mod rma;
 pub mod rsdf;

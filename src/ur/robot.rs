@@ -11,6 +11,7 @@
 
 use std::io::Write as _;
 use std::net::{SocketAddr, TcpStream};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use super::dashboard::{DashboardClient, DashboardError, RobotMode, SafetyStatus};
@@ -59,6 +60,8 @@ pub enum RowOutcome {
         /// From that package's arrival to the decision to pause, milliseconds.
         decided_after_ms: f64,
     },
+    /// Stopped on request (`abort`) with `stopl` before the move ended.
+    Aborted,
 }
 
 /// One driven row: its RTDE samples and how it ended.
@@ -76,10 +79,28 @@ pub struct RowRecord {
 /// An arm that drives raster rows.
 pub trait Robot {
     fn status(&mut self) -> Result<RobotStatus, RobotError>;
-    /// Drives one row: to its start, then along it at the spec's speed.
-    fn drive_row(&mut self, row: &Row, spec: &ScanSpec) -> Result<RowRecord, RobotError>;
+    /// Moves to `pose` at the spec's speed (nothing when already there). Setting `abort`
+    /// stops the arm at once and ends the move as [`RowOutcome::Aborted`].
+    fn move_to(
+        &mut self,
+        pose: &[f64; 6],
+        spec: &ScanSpec,
+        abort: &AtomicBool,
+    ) -> Result<RowOutcome, RobotError>;
+    /// Drives one row: to its start, then along it at the spec's speed; `abort` as for
+    /// [`move_to`](Self::move_to).
+    fn drive_row(
+        &mut self,
+        row: &Row,
+        spec: &ScanSpec,
+        abort: &AtomicBool,
+    ) -> Result<RowRecord, RobotError>;
     /// Stops motion now.
     fn stop(&mut self) -> Result<(), RobotError>;
+    /// The instant that samples' `host_s` count from.
+    fn epoch(&self) -> Instant;
+    /// RTDE output names, in the order of each sample's values.
+    fn output_names(&self) -> Vec<String>;
 }
 
 /// Addresses of a UR controller.
@@ -238,6 +259,7 @@ impl UrRobot {
         target: &[f64; 6],
         timeout: Duration,
         samples: &mut Vec<Sample>,
+        abort: &AtomicBool,
     ) -> Result<RowOutcome, RobotError> {
         let first = samples.len();
         self.kick_watchdog();
@@ -248,6 +270,10 @@ impl UrRobot {
         let mut checked = first;
         loop {
             self.pump(Duration::from_millis(10), samples)?;
+            if abort.load(Ordering::Relaxed) {
+                self.send_script("stopl(2.0)\n")?;
+                return Ok(RowOutcome::Aborted);
+            }
             if last_kick.elapsed() >= Duration::from_millis(50) {
                 self.kick_watchdog();
                 last_kick = Instant::now();
@@ -300,44 +326,24 @@ impl Robot for UrRobot {
         })
     }
 
-    fn drive_row(&mut self, row: &Row, spec: &ScanSpec) -> Result<RowRecord, RobotError> {
-        let status = self.status()?;
-        if !status.remote_control {
-            // Script sent in Local mode is silently ignored (protocols.md §0 fact 9).
-            return Err(DashboardError::LocalMode.into());
-        }
-        if status.robot_mode != RobotMode::Running || status.safety.is_stop() {
-            return Err(RobotError::NotReady {
-                mode: status.robot_mode.name().into(),
-                safety: status.safety.name().into(),
-            });
-        }
+    fn drive_row(
+        &mut self,
+        row: &Row,
+        spec: &ScanSpec,
+        abort: &AtomicBool,
+    ) -> Result<RowRecord, RobotError> {
+        self.check_ready()?;
         let gaps_before = self.gaps;
-        let p = row.start_pose;
-        let approach = movel_script(&p, spec.speed_m_per_s, spec.accel_m_per_s2);
-        let here = self
-            .latest
-            .as_ref()
-            .and_then(|s| pose_of(s, self.at.pose))
-            .unwrap_or(p);
-        let mut scratch = Vec::new();
-        if distance_m(&here, &p) >= AT_TARGET_M {
-            let t = Duration::from_secs_f64(
-                distance_m(&here, &p) / spec.speed_m_per_s
-                    + spec.speed_m_per_s / spec.accel_m_per_s2
-                    + 5.0,
-            );
-            if let outcome @ RowOutcome::SafetyStop { .. } =
-                self.run_move(&approach, &p, t, &mut scratch)?
-            {
-                return Ok(RowRecord {
-                    index: row.index,
-                    samples: Vec::new(),
-                    outcome,
-                    usable_x_m: row.usable_x_m,
-                    gaps: self.gaps - gaps_before,
-                });
-            }
+        let approach = self.approach(&row.start_pose, spec, abort)?;
+        if approach != RowOutcome::Completed {
+            let outcome = approach;
+            return Ok(RowRecord {
+                index: row.index,
+                samples: Vec::new(),
+                outcome,
+                usable_x_m: row.usable_x_m,
+                gaps: self.gaps - gaps_before,
+            });
         }
         let program = format!(
             "def mmnorm_row_{}():\n  rtde_set_watchdog(\"input_int_register_24\", 10, \"stop\")\n  {}end\n",
@@ -346,7 +352,7 @@ impl Robot for UrRobot {
         );
         let mut samples = Vec::new();
         let timeout = Duration::from_secs_f64(row.duration_s * 1.5 + 5.0);
-        let outcome = self.run_move(&program, &row.end_pose, timeout, &mut samples)?;
+        let outcome = self.run_move(&program, &row.end_pose, timeout, &mut samples, abort)?;
         Ok(RowRecord {
             index: row.index,
             samples,
@@ -356,13 +362,71 @@ impl Robot for UrRobot {
         })
     }
 
+    fn move_to(
+        &mut self,
+        pose: &[f64; 6],
+        spec: &ScanSpec,
+        abort: &AtomicBool,
+    ) -> Result<RowOutcome, RobotError> {
+        self.check_ready()?;
+        self.approach(pose, spec, abort)
+    }
+
     fn stop(&mut self) -> Result<(), RobotError> {
         self.send_script("stopl(2.0)\n")?;
         Ok(())
     }
+
+    fn epoch(&self) -> Instant {
+        self.rtde.epoch()
+    }
+
+    fn output_names(&self) -> Vec<String> {
+        self.rtde.output_names().to_vec()
+    }
 }
 
 impl UrRobot {
+    /// Refuses motion in Local mode (script would be silently ignored, protocols.md §0
+    /// fact 9) and outside Running or under a safety stop.
+    fn check_ready(&mut self) -> Result<(), RobotError> {
+        let status = self.status()?;
+        if !status.remote_control {
+            return Err(DashboardError::LocalMode.into());
+        }
+        if status.robot_mode != RobotMode::Running || status.safety.is_stop() {
+            return Err(RobotError::NotReady {
+                mode: status.robot_mode.name().into(),
+                safety: status.safety.name().into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// A plain `movel` to `p` unless the TCP is already within 0.5 mm of it.
+    fn approach(
+        &mut self,
+        p: &[f64; 6],
+        spec: &ScanSpec,
+        abort: &AtomicBool,
+    ) -> Result<RowOutcome, RobotError> {
+        let here = self
+            .latest
+            .as_ref()
+            .and_then(|s| pose_of(s, self.at.pose))
+            .unwrap_or(*p);
+        if distance_m(&here, p) < AT_TARGET_M {
+            return Ok(RowOutcome::Completed);
+        }
+        let t = Duration::from_secs_f64(
+            distance_m(&here, p) / spec.speed_m_per_s
+                + spec.speed_m_per_s / spec.accel_m_per_s2
+                + 5.0,
+        );
+        let script = movel_script(p, spec.speed_m_per_s, spec.accel_m_per_s2);
+        self.run_move(&script, p, t, &mut Vec::new(), abort)
+    }
+
     /// The index of the `timestamp` field in samples.
     pub fn timestamp_index(&self) -> usize {
         self.at.timestamp

@@ -1,0 +1,501 @@
+//! One scan (issue: scan pipeline): for each raster row, DCA1000 record start, `sensorStart`,
+//! the row's `movel` with RTDE streaming, stop and flush, then time alignment
+//! ([`crate::align`]). A row whose frame loss exceeds `recording.max_frame_loss`, or that had an
+//! RTDE gap, is scanned again up to `recording.max_row_retries` times, then reported and kept
+//! for what it holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
+//! judged, so nothing recorded is lost. The kept frames become the [`Capture`].
+//!
+//! The devices come in through their traits; this module never opens a socket.
+
+use std::cell::RefCell;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use num_complex::Complex32;
+
+use super::config::LabConfig;
+use crate::align::{AlignError, FrameTiming, PoseSample, RowAlignment, RowInput, align_row};
+use crate::capture::Capture;
+use crate::dca1000::board::{BoardError, CaptureBoard, CaptureReport, RecordPlan, record_frames};
+use crate::dca1000::packet::PacketArrival;
+use crate::dca1000::samples::{FrameLayout, LayoutError};
+use crate::radar::ProfileError;
+use crate::radar::{RadarControl, RadarProfile};
+use crate::ur::motion::{PlanError, RasterPlan, Row, ScanSpec, plan_raster};
+use crate::ur::robot::{Robot, RobotError, RowOutcome};
+use crate::ur::rtde::{Sample, Value};
+
+/// Why a scan stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    #[error(transparent)]
+    Profile(#[from] ProfileError),
+    #[error(transparent)]
+    Layout(#[from] LayoutError),
+    #[error(transparent)]
+    Plan(#[from] PlanError),
+    #[error("{0}")]
+    Setup(String),
+    #[error("row {row}: {source}")]
+    Board {
+        row: usize,
+        #[source]
+        source: BoardError,
+    },
+    #[error("row {row}: {source}")]
+    Robot {
+        row: usize,
+        #[source]
+        source: RobotError,
+    },
+    #[error("row {row}: the radar: {message}")]
+    Radar { row: usize, message: String },
+    #[error("row {row}: {source}")]
+    Align {
+        row: usize,
+        #[source]
+        source: AlignError,
+    },
+    #[error(
+        "row {row}: the arm reported a safety stop ({safety}); the scan is paused for a person"
+    )]
+    SafetyStop { row: usize, safety: String },
+    #[error("aborted at row {row}")]
+    Aborted { row: usize },
+    #[error("recording: {0}")]
+    Log(String),
+}
+
+/// Everything a scan needs that follows from the config, the profile and the request.
+#[derive(Debug, Clone)]
+pub struct ScanSetup {
+    pub spec: ScanSpec,
+    pub profile: RadarProfile,
+    pub layout: FrameLayout,
+    pub timing: FrameTiming,
+    pub plan: RasterPlan,
+}
+
+impl ScanSetup {
+    /// Reads the profile and plans the raster; refuses what cannot work before any device is
+    /// touched (over-speed, a profile too short for a row, extrinsics for another RX count).
+    pub fn new(lab: &LabConfig, spec: ScanSpec) -> Result<Self, ScanError> {
+        let profile = RadarProfile::from_cfg_file(&lab.radar.profile)?;
+        let layout = FrameLayout::from_profile(&profile, lab.dca1000.iq_order)?;
+        if layout.chirps_per_frame != 1 {
+            return Err(ScanError::Setup(format!(
+                "radar.profile {} has {} chirps per frame; a scan takes one chirp per frame (one TX position each)",
+                lab.radar.profile.display(),
+                layout.chirps_per_frame
+            )));
+        }
+        if lab.align.rx_in_radar_m.len() != profile.rx_count() {
+            return Err(ScanError::Setup(format!(
+                "align.rx_in_radar_m lists {} receivers but the profile enables {}",
+                lab.align.rx_in_radar_m.len(),
+                profile.rx_count()
+            )));
+        }
+        let period_s = profile.frame_period_s();
+        let wavelength_m = profile.first_sample_wavelength_m();
+        let plan = plan_raster(&spec, wavelength_m, period_s)?;
+        let row_s = plan.rows.first().map_or(0.0, |r| r.duration_s);
+        let recorded_s = f64::from(profile.frames) * period_s;
+        if profile.frames != 0 && recorded_s < row_s + 1.0 {
+            return Err(ScanError::Setup(format!(
+                "radar.profile records {} frames × {:.1} ms = {recorded_s:.2} s per row, but a row at scan.speed_m_per_s = {} takes {row_s:.2} s (+1 s margin); raise frameCfg's frame count",
+                profile.frames,
+                period_s * 1e3,
+                spec.speed_m_per_s
+            )));
+        }
+        Ok(Self {
+            timing: FrameTiming {
+                frame_period_s: period_s,
+                frame_bytes: layout.frame_bytes(),
+                centre_s: profile.first_chirp_centre_s(),
+                acquired_s: profile.frame_active_s(),
+                wavelength_m,
+            },
+            spec,
+            profile,
+            layout,
+            plan,
+        })
+    }
+}
+
+/// The devices a scan drives.
+pub struct Devices<'a> {
+    pub radar: &'a mut dyn RadarControl,
+    pub board: &'a mut dyn CaptureBoard,
+    pub robot: &'a mut (dyn Robot + Send),
+}
+
+/// What one attempt at a row recorded.
+#[derive(Debug, Clone)]
+pub struct RowRecording {
+    pub row: usize,
+    pub attempt: u32,
+    pub direction: i8,
+    pub usable_x_m: (f64, f64),
+    /// Every frame in order, zero-filled where data was lost.
+    pub frames: Vec<Vec<u8>>,
+    pub complete: Vec<bool>,
+    pub arrivals: Vec<PacketArrival>,
+    /// RTDE samples, `host_s` counted from the scan's epoch.
+    pub rtde: Vec<Sample>,
+    pub report: CaptureReport,
+    pub outcome: RowOutcome,
+    pub rtde_gaps: usize,
+}
+
+impl RowRecording {
+    /// Flagged frames before the last one (the last frame's tail waits in the FPGA for its
+    /// idle flush when the radar stops early), as a fraction of those frames.
+    pub fn frame_loss(&self) -> f64 {
+        let n = self.complete.len().saturating_sub(1);
+        if n == 0 {
+            return 1.0;
+        }
+        self.complete[..n].iter().filter(|c| !**c).count() as f64 / n as f64
+    }
+}
+
+/// The RTDE samples of a row as alignment wants them.
+pub fn pose_samples(output_names: &[String], samples: &[Sample]) -> Vec<PoseSample> {
+    let pose_at = output_names.iter().position(|n| n == "actual_TCP_pose");
+    samples
+        .iter()
+        .filter_map(|s| {
+            let tcp_pose = match s.values.get(pose_at?) {
+                Some(Value::Vector6d(p)) => *p,
+                _ => return None,
+            };
+            Some(PoseSample {
+                host_s: s.host_s,
+                controller_s: s.controller_s?,
+                segment: s.segment,
+                tcp_pose,
+            })
+        })
+        .collect()
+}
+
+/// Aligns a recorded row with the config's extrinsics.
+pub fn align_recording(
+    lab: &LabConfig,
+    setup: &ScanSetup,
+    output_names: &[String],
+    rec: &RowRecording,
+) -> Result<RowAlignment, AlignError> {
+    let poses = pose_samples(output_names, &rec.rtde);
+    align_row(
+        &lab.align,
+        &setup.timing,
+        &RowInput {
+            frame_complete: &rec.complete,
+            packets: &rec.arrivals,
+            poses: &poses,
+            usable_x_m: rec.usable_x_m,
+        },
+    )
+}
+
+/// A row's result as the scan reports it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RowSummary {
+    pub row: usize,
+    pub rows: usize,
+    pub attempt: u32,
+    pub direction: i8,
+    pub frames: usize,
+    pub kept: usize,
+    pub frame_loss: f64,
+    pub lost_packets: u64,
+    pub rtde_gaps: usize,
+    pub accepted: bool,
+    /// Why the row is scanned again or reported, if it is.
+    pub problem: Option<String>,
+}
+
+/// Where a scan reports and records as it goes.
+pub trait ScanLog {
+    /// A row attempt, with its alignment (before it is judged).
+    fn row(&mut self, rec: &RowRecording, aligned: &RowAlignment) -> Result<(), String>;
+    /// A row's verdict.
+    fn progress(&mut self, summary: &RowSummary);
+}
+
+/// The scan's result: the capture from every accepted row and what happened.
+#[derive(Debug, Clone)]
+pub struct ScanResult {
+    pub capture: Capture,
+    pub rows: Vec<RowSummary>,
+    /// Rows that failed every attempt (kept for what they hold).
+    pub reported_rows: Vec<usize>,
+    pub elapsed_s: f64,
+}
+
+/// Runs the scan.
+pub fn run_scan(
+    lab: &LabConfig,
+    setup: &ScanSetup,
+    devices: &mut Devices<'_>,
+    epoch: Instant,
+    log: &mut dyn ScanLog,
+    abort: &AtomicBool,
+) -> Result<ScanResult, ScanError> {
+    let started = Instant::now();
+    let names = devices.robot.output_names();
+    let mut kept: Vec<(RowRecording, RowAlignment)> = Vec::new();
+    let mut summaries = Vec::new();
+    let mut reported = Vec::new();
+    let rows = setup.plan.rows.len();
+    for row in &setup.plan.rows {
+        for attempt in 0..=lab.recording.max_row_retries {
+            if abort.load(Ordering::Relaxed) {
+                return Err(ScanError::Aborted { row: row.index });
+            }
+            let rec = record_row(lab, setup, devices, row, attempt, epoch, abort)?;
+            let aligned =
+                align_recording(lab, setup, &names, &rec).map_err(|source| ScanError::Align {
+                    row: row.index,
+                    source,
+                })?;
+            log.row(&rec, &aligned).map_err(ScanError::Log)?;
+            let loss = rec.frame_loss();
+            let problem = if loss > lab.recording.max_frame_loss {
+                Some(format!(
+                    "frame loss {:.2} % above recording.max_frame_loss = {:.2} %",
+                    loss * 100.0,
+                    lab.recording.max_frame_loss * 100.0
+                ))
+            } else if rec.rtde_gaps > 0 {
+                Some(format!("{} RTDE gap(s) during the row", rec.rtde_gaps))
+            } else {
+                None
+            };
+            let last_attempt = attempt == lab.recording.max_row_retries;
+            let summary = RowSummary {
+                row: row.index,
+                rows,
+                attempt,
+                direction: row.direction,
+                frames: rec.complete.len(),
+                kept: aligned.frames.len(),
+                frame_loss: loss,
+                lost_packets: rec.report.stream.lost,
+                rtde_gaps: rec.rtde_gaps,
+                accepted: problem.is_none() || last_attempt,
+                problem: problem.clone(),
+            };
+            log.progress(&summary);
+            summaries.push(summary);
+            if problem.is_none() || last_attempt {
+                if problem.is_some() {
+                    reported.push(row.index);
+                }
+                kept.push((rec, aligned));
+                break;
+            }
+        }
+    }
+    Ok(ScanResult {
+        capture: build_capture(lab, setup, &kept),
+        rows: summaries,
+        reported_rows: reported,
+        elapsed_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// One attempt at one row (see the module docs).
+fn record_row(
+    lab: &LabConfig,
+    setup: &ScanSetup,
+    devices: &mut Devices<'_>,
+    row: &Row,
+    attempt: u32,
+    epoch: Instant,
+    abort: &AtomicBool,
+) -> Result<RowRecording, ScanError> {
+    let index = row.index;
+    let robot_error = |source| ScanError::Robot { row: index, source };
+    match devices
+        .robot
+        .move_to(&row.start_pose, &setup.spec, abort)
+        .map_err(robot_error)?
+    {
+        RowOutcome::Completed => {}
+        RowOutcome::Aborted => return Err(ScanError::Aborted { row: index }),
+        RowOutcome::SafetyStop { safety, .. } => {
+            return Err(ScanError::SafetyStop {
+                row: index,
+                safety: safety.name().into(),
+            });
+        }
+    }
+    let d = &lab.dca1000;
+    let plan = RecordPlan {
+        frames: if setup.profile.frames == 0 {
+            u64::MAX
+        } else {
+            u64::from(setup.profile.frames)
+        },
+        frame_bytes: setup.layout.frame_bytes(),
+        frame_period_s: setup.timing.frame_period_s,
+        first_frame_margin: Duration::from_millis(d.first_frame_margin_ms),
+        stop_delay: Duration::from_secs_f64(d.stop_delay_s),
+        epoch,
+    };
+    let robot_epoch = devices.robot.epoch();
+    let radar = RefCell::new(&mut *devices.radar);
+    let board = &mut *devices.board;
+    let robot = &mut *devices.robot;
+    let row_abort = AtomicBool::new(false);
+    let robot_done = AtomicBool::new(false);
+    let mut frames = Vec::new();
+    let mut complete = Vec::new();
+    let (recorded, driven, mut radar_stop) = std::thread::scope(|s| {
+        let (go_tx, go_rx) = mpsc::channel::<()>();
+        let (row_abort, robot_done) = (&row_abort, &robot_done);
+        let driver = s.spawn(move || {
+            go_rx.recv().ok()?;
+            let r = robot.drive_row(row, &setup.spec, row_abort);
+            robot_done.store(true, Ordering::Release);
+            Some(r)
+        });
+        let mut go = Some(go_tx);
+        let mut start = || {
+            radar.borrow_mut().start().map_err(|e| e.to_string())?;
+            if let Some(g) = go.take() {
+                g.send(()).ok();
+            }
+            Ok(())
+        };
+        let mut radar_stop = None;
+        let mut stopped = false;
+        let mut finished = || {
+            if abort.load(Ordering::Relaxed) {
+                row_abort.store(true, Ordering::Relaxed);
+            }
+            if !stopped && (robot_done.load(Ordering::Acquire) || row_abort.load(Ordering::Relaxed))
+            {
+                stopped = true;
+                radar_stop = Some(radar.borrow_mut().stop().map_err(|e| e.to_string()));
+            }
+            stopped
+        };
+        let mut sink = |f: &crate::dca1000::Frame| {
+            complete.push(f.is_complete());
+            frames.push(f.data.to_vec());
+            Ok(())
+        };
+        let recorded = record_frames(board, &plan, &mut start, &mut finished, &mut sink);
+        drop(start);
+        // Whatever ended the recording, the arm must not go on alone.
+        if recorded.is_err() {
+            row_abort.store(true, Ordering::Relaxed);
+        }
+        let driven = driver.join();
+        (recorded, driven, radar_stop)
+    });
+    if radar_stop.is_none() {
+        // The recording ended without the row finishing: make sure the radar is stopped.
+        radar_stop = Some(radar.borrow_mut().stop().map_err(|e| e.to_string()));
+    }
+    let report = recorded.map_err(|source| ScanError::Board { row: index, source })?;
+    let record = match driven {
+        Ok(Some(r)) => r.map_err(robot_error)?,
+        Ok(None) => {
+            return Err(ScanError::Radar {
+                row: index,
+                message: "sensorStart failed".into(),
+            });
+        }
+        Err(_) => {
+            return Err(ScanError::Setup(format!(
+                "row {index}: the robot thread panicked"
+            )));
+        }
+    };
+    if let Some(Err(message)) = radar_stop {
+        return Err(ScanError::Radar {
+            row: index,
+            message,
+        });
+    }
+    match &record.outcome {
+        RowOutcome::Completed => {}
+        RowOutcome::Aborted => return Err(ScanError::Aborted { row: index }),
+        RowOutcome::SafetyStop { safety, .. } => {
+            return Err(ScanError::SafetyStop {
+                row: index,
+                safety: safety.name().into(),
+            });
+        }
+    }
+    let shift_s = crate::dca1000::board::signed_seconds(robot_epoch, epoch);
+    let rtde = record
+        .samples
+        .into_iter()
+        .map(|mut s| {
+            s.host_s += shift_s;
+            s
+        })
+        .collect();
+    Ok(RowRecording {
+        row: index,
+        attempt,
+        direction: row.direction,
+        usable_x_m: row.usable_x_m,
+        frames,
+        complete,
+        arrivals: report.arrivals.clone(),
+        rtde,
+        report,
+        outcome: record.outcome,
+        rtde_gaps: record.gaps,
+    })
+}
+
+/// The capture from the kept frames of the accepted rows: one virtual antenna per (frame, RX),
+/// RX-minor, samples as ADC counts.
+pub fn build_capture(
+    lab: &LabConfig,
+    setup: &ScanSetup,
+    rows: &[(RowRecording, RowAlignment)],
+) -> Capture {
+    let t = setup.layout.samples_per_chirp;
+    let rx = setup.layout.rx_count;
+    let mut capture = Capture {
+        plan: setup.profile.frequency_plan(),
+        range_offset_m: lab.align.range_offset_m,
+        tx_m: Vec::new(),
+        rx_m: Vec::new(),
+        samples: Vec::new(),
+        description: String::new(),
+        extra: serde_json::Map::new(),
+    };
+    for (rec, aligned) in rows {
+        for f in &aligned.frames {
+            let Some(bytes) = rec.frames.get(f.frame as usize) else {
+                continue;
+            };
+            let Ok(words) = setup.layout.decode(bytes) else {
+                continue;
+            };
+            for (k, rx_m) in f.rx_in_base_m.iter().enumerate().take(rx) {
+                capture.tx_m.push(f.tx_in_base_m);
+                capture.rx_m.push(*rx_m);
+                capture.samples.extend(
+                    words[k * t..(k + 1) * t]
+                        .iter()
+                        .map(|w| Complex32::new(f32::from(w.re), f32::from(w.im))),
+                );
+            }
+        }
+    }
+    capture
+}
