@@ -44,6 +44,7 @@ pub mod preview;
 pub mod progress;
 pub mod radar;
 pub mod recon;
+pub mod record;
 pub mod signal;
 pub mod sim;
 pub mod ur;

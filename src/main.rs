@@ -27,6 +27,9 @@ struct Args {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Start the simulated lab in-process, scan the demo aperture through the real clients,
+    /// reconstruct, score against the scene's truth and print where the files are.
+    Demo(cli::demo::DemoArgs),
     /// Simulate a scan of a scene and write a capture directory v1 with its ground truth.
     Simulate {
         /// Scene file (TOML); see the README for the format.
@@ -225,6 +228,7 @@ fn main() -> std::process::ExitCode {
             which: BenchCommand::Stream(a),
         } => cli::bench::stream(a),
         Command::Profile { cfg } => cli::profile::run(&cfg),
+        Command::Demo(a) => cli::demo::run(&a, args.quiet),
         Command::Capture {
             which: CaptureCommand::Raw(a),
         } => cli::capture::raw(a, args.quiet),

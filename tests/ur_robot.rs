@@ -73,7 +73,7 @@ fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
     let mut total = 0;
     for row in &plan.rows {
         let record = robot
-            .drive_row(row, &spec, &AtomicBool::new(false))
+            .drive_row(row, &spec, &AtomicBool::new(false), &mut |_| {})
             .unwrap();
         assert_eq!(record.outcome, RowOutcome::Completed);
         assert_eq!(record.gaps, 0);
@@ -257,7 +257,7 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
     // Move 0 is the approach to row 0; move 1 is row 0 itself.
     let record = robot
-        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false), &mut |_| {})
         .unwrap();
     let RowOutcome::SafetyStop {
         safety,
@@ -287,7 +287,7 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
         SafetyStatus::ProtectiveStop
     );
     assert!(matches!(
-        robot.drive_row(&plan.rows[1], &spec, &AtomicBool::new(false)),
+        robot.drive_row(&plan.rows[1], &spec, &AtomicBool::new(false), &mut |_| {}),
         Err(RobotError::NotReady { .. })
     ));
 }
@@ -313,7 +313,7 @@ fn local_mode_is_a_clear_error() {
     let spec = small_spec();
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
     let err = robot
-        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+        .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false), &mut |_| {})
         .unwrap_err();
     assert!(err.to_string().contains("Remote Control"), "{err}");
     assert_eq!(sim.arm().moves_started, 0);
@@ -435,7 +435,7 @@ fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
     {
         let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
         robot
-            .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false))
+            .drive_row(&plan.rows[0], &spec, &AtomicBool::new(false), &mut |_| {})
             .unwrap();
         // Start row 1's approach and the row itself by hand, then die without kicking.
         let row = &plan.rows[1];

@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod capture;
+pub mod demo;
 pub mod eval;
 pub mod inspect;
 pub mod profile;

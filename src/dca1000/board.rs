@@ -157,16 +157,29 @@ pub struct CaptureReport {
     pub arrivals: Vec<PacketArrival>,
 }
 
-/// Records `plan.frames` frames: `RECORD_START`, `start_sensor`, receive, `RECORD_STOP`.
-/// Every frame goes to `sink` in order, complete or flagged. `finished` is asked between
-/// datagrams: once it says the radar has stopped, packets still in flight are awaited for
+/// Where a recording's data goes as it arrives, and how it starts and ends.
+pub trait RecordSink {
+    /// Starts the radar (`sensorStart`), right after `RECORD_START`.
+    fn start_sensor(&mut self) -> Result<(), String>;
+    /// Asked between datagrams: true once the radar has stopped before the planned count.
+    fn finished(&mut self) -> bool {
+        false
+    }
+    /// Every data packet that parsed, as it arrives.
+    fn packet(&mut self, _arrival: &PacketArrival) -> std::io::Result<()> {
+        Ok(())
+    }
+    /// Every frame in order, complete or flagged.
+    fn frame(&mut self, frame: &Frame) -> std::io::Result<()>;
+}
+
+/// Records `plan.frames` frames: `RECORD_START`, `sink.start_sensor`, receive, `RECORD_STOP`.
+/// Once `sink.finished` says the radar has stopped, packets still in flight are awaited for
 /// [`LINGER`] (or three frame periods, if longer) and the recording ends there.
 pub fn record_frames(
     board: &mut dyn CaptureBoard,
     plan: &RecordPlan,
-    start_sensor: &mut dyn FnMut() -> Result<(), String>,
-    finished: &mut dyn FnMut() -> bool,
-    sink: &mut dyn FnMut(&Frame) -> std::io::Result<()>,
+    sink: &mut dyn RecordSink,
 ) -> Result<CaptureReport, BoardError> {
     let started = Instant::now();
     let mut reassembler = Reassembler::new(plan.frame_bytes, Some(plan.frames));
@@ -175,7 +188,7 @@ pub fn record_frames(
         ..CaptureReport::default()
     };
     board.start_record()?;
-    if let Err(e) = start_sensor() {
+    if let Err(e) = sink.start_sensor() {
         board.stop_record().ok();
         return Err(BoardError::SensorStart(e));
     }
@@ -195,7 +208,7 @@ pub fn record_frames(
     let mut emitted = 0u64;
     let mut stopped = false;
     while emitted < plan.frames {
-        if !stopped && finished() {
+        if !stopped && sink.finished() {
             stopped = true;
             reassembler.end_early();
             let linger = LINGER.max(period.mul_f64(3.0));
@@ -226,11 +239,16 @@ pub fn record_frames(
                 }
             }
             if let Ok(p) = DataPacket::parse(&datagram.bytes) {
-                report.arrivals.push(PacketArrival {
+                let arrival = PacketArrival {
                     byte_offset: p.byte_offset,
                     payload_len: p.payload.len() as u32,
                     host_s: signed_seconds(datagram.received, plan.epoch),
-                });
+                };
+                sink.packet(&arrival).map_err(|source| BoardError::Sink {
+                    frame: p.byte_offset / plan.frame_bytes.max(1) as u64,
+                    source,
+                })?;
+                report.arrivals.push(arrival);
             }
             // A malformed datagram is counted by the reassembler and otherwise ignored.
             reassembler.push(&datagram.bytes).ok();
@@ -263,14 +281,14 @@ pub fn signed_seconds(at: Instant, epoch: Instant) -> f64 {
 fn hand_out(
     reassembler: &mut Reassembler,
     report: &mut CaptureReport,
-    sink: &mut dyn FnMut(&Frame) -> std::io::Result<()>,
+    sink: &mut dyn RecordSink,
 ) -> Result<u64, BoardError> {
     let mut count = 0;
     while let Some(frame) = reassembler.pop_frame() {
         if !frame.is_complete() {
             report.flagged_frame_indices.push(frame.index);
         }
-        sink(&frame).map_err(|source| BoardError::Sink {
+        sink.frame(&frame).map_err(|source| BoardError::Sink {
             frame: frame.index,
             source,
         })?;

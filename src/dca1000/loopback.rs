@@ -176,21 +176,30 @@ mod tests {
             epoch: Instant::now(),
         };
         let mut stream = Vec::new();
-        let report = record_frames(
-            &mut board,
-            &plan,
-            &mut || {
-                trigger.start(StreamPlan {
+        struct Sink<'a> {
+            trigger: SensorTrigger,
+            stream: &'a mut Vec<u8>,
+        }
+        impl crate::dca1000::board::RecordSink for Sink<'_> {
+            fn start_sensor(&mut self) -> Result<(), String> {
+                self.trigger.start(StreamPlan {
                     frames: 200,
                     frame_period_s: 0.003,
                     acquired_s: 0.000_07,
                 });
                 Ok(())
-            },
-            &mut || false,
-            &mut |f| {
-                stream.extend_from_slice(&f.data);
+            }
+            fn frame(&mut self, f: &crate::dca1000::Frame) -> std::io::Result<()> {
+                self.stream.extend_from_slice(&f.data);
                 Ok(())
+            }
+        }
+        let report = record_frames(
+            &mut board,
+            &plan,
+            &mut Sink {
+                trigger,
+                stream: &mut stream,
             },
         )
         .unwrap();

@@ -26,7 +26,7 @@ pub mod sim;
 pub mod udp;
 
 pub use board::{
-    BoardError, CaptureBoard, CaptureReport, ReceiveCounters, RecordPlan, record_frames,
+    BoardError, CaptureBoard, CaptureReport, ReceiveCounters, RecordPlan, RecordSink, record_frames,
 };
 pub use command::{AsyncEvent, Command, CommandCode, FpgaConfig, PacketConfig, Response};
 pub use packet::DataPacket;

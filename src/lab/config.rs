@@ -42,6 +42,8 @@ pub struct RobotConfig {
     pub rtde_port: u16,
     /// 500 on e-Series, 125 on CB3.
     pub rtde_frequency_hz: f64,
+    /// Packages missed before the RTDE stream counts as stalled (a gap: the row is rescanned).
+    pub rtde_stall_periods: f64,
 }
 
 impl Default for RobotConfig {
@@ -52,6 +54,7 @@ impl Default for RobotConfig {
             script_port: 30002,
             rtde_port: 30004,
             rtde_frequency_hz: 500.0,
+            rtde_stall_periods: 3.0,
         }
     }
 }
@@ -65,6 +68,12 @@ impl RobotConfig {
             return Err(format!(
                 "robot.rtde_frequency_hz = {} must lie in (0, 500]",
                 self.rtde_frequency_hz
+            ));
+        }
+        if !(self.rtde_stall_periods.is_finite() && self.rtde_stall_periods >= 1.0) {
+            return Err(format!(
+                "robot.rtde_stall_periods = {} must be at least 1",
+                self.rtde_stall_periods
             ));
         }
         Ok(())
@@ -211,6 +220,8 @@ pub struct SimConfig {
     pub dca1000_faults: FaultConfig,
     pub cli_faults: CliFaults,
     pub robot: SimRobotConfig,
+    /// The recorder's disk fails (ENOSPC) after this many bytes: a seeded fault for tests.
+    pub record_fail_after_bytes: Option<u64>,
 }
 
 impl Default for SimConfig {
@@ -228,6 +239,7 @@ impl Default for SimConfig {
             dca1000_faults: FaultConfig::default(),
             cli_faults: CliFaults::default(),
             robot: SimRobotConfig::default(),
+            record_fail_after_bytes: None,
         }
     }
 }

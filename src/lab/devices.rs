@@ -51,6 +51,7 @@ impl LabDevices {
         let r = &lab.robot;
         let mut rtde = RtdeConfig::e_series(r.addr(r.rtde_port));
         rtde.frequency_hz = r.rtde_frequency_hz;
+        rtde.stall_periods = r.rtde_stall_periods;
         rtde.connect_timeout = Duration::from_secs(3);
         let robot = UrRobot::connect(&UrAddresses {
             dashboard: r.addr(r.dashboard_port),

@@ -11,6 +11,7 @@
 
 pub mod config;
 pub mod devices;
+pub mod job;
 pub mod raw;
 pub mod scan;
 pub mod scene_frames;

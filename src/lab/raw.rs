@@ -13,13 +13,15 @@
 //! - `report.json`: the counters (packets, bytes, lost, duplicates, reordered, late, flagged
 //!   frames, kernel drops), the async events, the radar's command record, and the error if any.
 
-use std::io::Write as _;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use super::config::LabConfig;
 use crate::capture::dir::write_atomically;
-use crate::dca1000::board::{BoardError, CaptureBoard, CaptureReport, RecordPlan, record_frames};
+use crate::dca1000::board::{
+    BoardError, CaptureBoard, CaptureReport, RecordPlan, RecordSink, record_frames,
+};
 use crate::dca1000::command::FpgaVersion;
 use crate::dca1000::samples::FrameLayout;
 use crate::progress::Progress;
@@ -99,6 +101,27 @@ pub fn capture_raw(
     result.map(|()| report)
 }
 
+/// Frames to `adc_data.bin.partial`, in order.
+struct FileSink<'a, 'r, W: Write> {
+    radar: Option<&'a mut (dyn RadarControl + 'r)>,
+    writer: &'a mut W,
+    progress: &'a Progress,
+}
+
+impl<W: Write> RecordSink for FileSink<'_, '_, W> {
+    fn start_sensor(&mut self) -> Result<(), String> {
+        match self.radar.as_deref_mut() {
+            Some(r) => r.start().map_err(|e| e.to_string()),
+            None => Ok(()),
+        }
+    }
+
+    fn frame(&mut self, frame: &crate::dca1000::Frame) -> std::io::Result<()> {
+        self.progress.inc(1);
+        self.writer.write_all(&frame.data)
+    }
+}
+
 fn run(
     board: &mut dyn CaptureBoard,
     mut radar: Option<&mut dyn RadarControl>,
@@ -133,15 +156,12 @@ fn run(
         epoch: std::time::Instant::now(),
     };
     let progress = Progress::new("capture", job.frames, job.quiet);
-    let mut start_sensor = || match radar.as_deref_mut() {
-        Some(r) => r.start().map_err(|e| e.to_string()),
-        None => Ok(()),
+    let mut sink = FileSink {
+        radar: radar.as_deref_mut(),
+        writer: &mut writer,
+        progress: &progress,
     };
-    let mut sink = |frame: &crate::dca1000::Frame| {
-        progress.inc(1);
-        writer.write_all(&frame.data)
-    };
-    let recorded = record_frames(board, &plan, &mut start_sensor, &mut || false, &mut sink);
+    let recorded = record_frames(board, &plan, &mut sink);
     let flushed = writer.flush().and_then(|()| writer.get_ref().sync_all());
     progress.finish();
     report.capture = recorded?;

@@ -7,7 +7,6 @@
 //!
 //! The devices come in through their traits; this module never opens a socket.
 
-use std::cell::RefCell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -17,7 +16,10 @@ use num_complex::Complex32;
 use super::config::LabConfig;
 use crate::align::{AlignError, FrameTiming, PoseSample, RowAlignment, RowInput, align_row};
 use crate::capture::Capture;
-use crate::dca1000::board::{BoardError, CaptureBoard, CaptureReport, RecordPlan, record_frames};
+use crate::dca1000::Frame;
+use crate::dca1000::board::{
+    BoardError, CaptureBoard, CaptureReport, RecordPlan, RecordSink, record_frames,
+};
 use crate::dca1000::packet::PacketArrival;
 use crate::dca1000::samples::{FrameLayout, LayoutError};
 use crate::radar::ProfileError;
@@ -82,6 +84,15 @@ impl ScanSetup {
     /// touched (over-speed, a profile too short for a row, extrinsics for another RX count).
     pub fn new(lab: &LabConfig, spec: ScanSpec) -> Result<Self, ScanError> {
         let profile = RadarProfile::from_cfg_file(&lab.radar.profile)?;
+        Self::with_profile(lab, spec, profile)
+    }
+
+    /// [`new`](Self::new) with the profile already read (a replay takes it from the recording).
+    pub fn with_profile(
+        lab: &LabConfig,
+        spec: ScanSpec,
+        profile: RadarProfile,
+    ) -> Result<Self, ScanError> {
         let layout = FrameLayout::from_profile(&profile, lab.dca1000.iq_order)?;
         if layout.chirps_per_frame != 1 {
             return Err(ScanError::Setup(format!(
@@ -220,12 +231,23 @@ pub struct RowSummary {
     pub problem: Option<String>,
 }
 
-/// Where a scan reports and records as it goes.
+/// Where a scan records and reports as it goes. Data arrive as they are received, so a
+/// recorder loses at most what it has not yet written when the process dies.
 pub trait ScanLog {
-    /// A row attempt, with its alignment (before it is judged).
+    /// A frame of row `row`'s attempt `attempt`, complete or flagged.
+    fn frame(&mut self, row: usize, attempt: u32, frame: &Frame) -> Result<(), String>;
+    /// A data packet's place and arrival.
+    fn packet(&mut self, row: usize, attempt: u32, arrival: &PacketArrival) -> Result<(), String>;
+    /// An RTDE sample (`host_s` from the scan's epoch).
+    fn rtde(&mut self, row: usize, attempt: u32, sample: &Sample) -> Result<(), String>;
+    /// The attempt's end: its report and alignment, before it is judged.
     fn row(&mut self, rec: &RowRecording, aligned: &RowAlignment) -> Result<(), String>;
     /// A row's verdict.
     fn progress(&mut self, summary: &RowSummary);
+    /// Called every few milliseconds while a row records (a recorder closes chunks on time).
+    fn tick(&mut self) -> Result<(), String> {
+        Ok(())
+    }
 }
 
 /// The scan's result: the capture from every accepted row and what happened.
@@ -258,7 +280,7 @@ pub fn run_scan(
             if abort.load(Ordering::Relaxed) {
                 return Err(ScanError::Aborted { row: row.index });
             }
-            let rec = record_row(lab, setup, devices, row, attempt, epoch, abort)?;
+            let rec = record_row(lab, setup, devices, log, row, attempt, epoch, abort)?;
             let aligned =
                 align_recording(lab, setup, &names, &rec).map_err(|source| ScanError::Align {
                     row: row.index,
@@ -266,17 +288,7 @@ pub fn run_scan(
                 })?;
             log.row(&rec, &aligned).map_err(ScanError::Log)?;
             let loss = rec.frame_loss();
-            let problem = if loss > lab.recording.max_frame_loss {
-                Some(format!(
-                    "frame loss {:.2} % above recording.max_frame_loss = {:.2} %",
-                    loss * 100.0,
-                    lab.recording.max_frame_loss * 100.0
-                ))
-            } else if rec.rtde_gaps > 0 {
-                Some(format!("{} RTDE gap(s) during the row", rec.rtde_gaps))
-            } else {
-                None
-            };
+            let problem = row_problem(lab, loss, rec.rtde_gaps);
             let last_attempt = attempt == lab.recording.max_row_retries;
             let summary = RowSummary {
                 row: row.index,
@@ -310,11 +322,113 @@ pub fn run_scan(
     })
 }
 
+/// The recording side of one row attempt: frames and packets into the log and the buffers,
+/// RTDE samples drained from the robot thread, the radar stopped once the arm is done.
+struct RowSink<'a, 'r> {
+    radar: &'a mut (dyn RadarControl + 'r),
+    log: &'a mut dyn ScanLog,
+    row: usize,
+    attempt: u32,
+    go: Option<mpsc::Sender<()>>,
+    samples: mpsc::Receiver<Sample>,
+    robot_done: &'a AtomicBool,
+    row_abort: &'a AtomicBool,
+    abort: &'a AtomicBool,
+    radar_stop: Option<Result<(), String>>,
+    log_error: Option<String>,
+    frames: Vec<Vec<u8>>,
+    complete: Vec<bool>,
+    rtde: Vec<Sample>,
+}
+
+impl RowSink<'_, '_> {
+    fn drain_samples(&mut self) {
+        while let Ok(sample) = self.samples.try_recv() {
+            if self.log_error.is_none()
+                && let Err(e) = self.log.rtde(self.row, self.attempt, &sample)
+            {
+                self.log_error = Some(e);
+            }
+            self.rtde.push(sample);
+        }
+        if self.log_error.is_none()
+            && let Err(e) = self.log.tick()
+        {
+            self.log_error = Some(e);
+        }
+    }
+
+    fn failed(&self) -> std::io::Result<()> {
+        match &self.log_error {
+            Some(e) => Err(std::io::Error::other(e.clone())),
+            None => Ok(()),
+        }
+    }
+}
+
+impl RecordSink for RowSink<'_, '_> {
+    fn start_sensor(&mut self) -> Result<(), String> {
+        self.radar.start().map_err(|e| e.to_string())?;
+        if let Some(go) = self.go.take() {
+            go.send(()).ok();
+        }
+        Ok(())
+    }
+
+    fn finished(&mut self) -> bool {
+        self.drain_samples();
+        if self.abort.load(Ordering::Relaxed) || self.log_error.is_some() {
+            self.row_abort.store(true, Ordering::Relaxed);
+        }
+        if self.radar_stop.is_none()
+            && (self.robot_done.load(Ordering::Acquire) || self.row_abort.load(Ordering::Relaxed))
+        {
+            self.radar_stop = Some(self.radar.stop().map_err(|e| e.to_string()));
+        }
+        self.radar_stop.is_some()
+    }
+
+    fn packet(&mut self, arrival: &PacketArrival) -> std::io::Result<()> {
+        self.failed()?;
+        self.log
+            .packet(self.row, self.attempt, arrival)
+            .map_err(std::io::Error::other)
+    }
+
+    fn frame(&mut self, frame: &Frame) -> std::io::Result<()> {
+        self.failed()?;
+        self.log
+            .frame(self.row, self.attempt, frame)
+            .map_err(std::io::Error::other)?;
+        self.complete.push(frame.is_complete());
+        self.frames.push(frame.data.to_vec());
+        Ok(())
+    }
+}
+
+/// Why a row attempt must be scanned again, if it must: frame loss above
+/// `recording.max_frame_loss`, or an RTDE gap.
+pub fn row_problem(lab: &LabConfig, frame_loss: f64, rtde_gaps: usize) -> Option<String> {
+    if frame_loss > lab.recording.max_frame_loss {
+        Some(format!(
+            "frame loss {:.2} % above recording.max_frame_loss = {:.2} %",
+            frame_loss * 100.0,
+            lab.recording.max_frame_loss * 100.0
+        ))
+    } else if rtde_gaps > 0 {
+        Some(format!("{rtde_gaps} RTDE gap(s) during the row"))
+    } else {
+        None
+    }
+}
+
 /// One attempt at one row (see the module docs).
+#[allow(clippy::too_many_arguments)]
 fn record_row(
     lab: &LabConfig,
     setup: &ScanSetup,
     devices: &mut Devices<'_>,
+    log: &mut dyn ScanLog,
     row: &Row,
     attempt: u32,
     epoch: Instant,
@@ -349,61 +463,58 @@ fn record_row(
         stop_delay: Duration::from_secs_f64(d.stop_delay_s),
         epoch,
     };
-    let robot_epoch = devices.robot.epoch();
-    let radar = RefCell::new(&mut *devices.radar);
+    let shift_s = crate::dca1000::board::signed_seconds(devices.robot.epoch(), epoch);
     let board = &mut *devices.board;
     let robot = &mut *devices.robot;
     let row_abort = AtomicBool::new(false);
     let robot_done = AtomicBool::new(false);
-    let mut frames = Vec::new();
-    let mut complete = Vec::new();
-    let (recorded, driven, mut radar_stop) = std::thread::scope(|s| {
-        let (go_tx, go_rx) = mpsc::channel::<()>();
+    let (go_tx, go_rx) = mpsc::channel::<()>();
+    let (sample_tx, sample_rx) = mpsc::channel::<Sample>();
+    let mut sink = RowSink {
+        radar: &mut *devices.radar,
+        log,
+        row: index,
+        attempt,
+        go: Some(go_tx),
+        samples: sample_rx,
+        robot_done: &robot_done,
+        row_abort: &row_abort,
+        abort,
+        radar_stop: None,
+        log_error: None,
+        frames: Vec::new(),
+        complete: Vec::new(),
+        rtde: Vec::new(),
+    };
+    let (recorded, driven) = std::thread::scope(|s| {
         let (row_abort, robot_done) = (&row_abort, &robot_done);
         let driver = s.spawn(move || {
             go_rx.recv().ok()?;
-            let r = robot.drive_row(row, &setup.spec, row_abort);
+            let mut forward = |sample: &Sample| {
+                let mut sample = sample.clone();
+                sample.host_s += shift_s;
+                sample_tx.send(sample).ok();
+            };
+            let r = robot.drive_row(row, &setup.spec, row_abort, &mut forward);
             robot_done.store(true, Ordering::Release);
             Some(r)
         });
-        let mut go = Some(go_tx);
-        let mut start = || {
-            radar.borrow_mut().start().map_err(|e| e.to_string())?;
-            if let Some(g) = go.take() {
-                g.send(()).ok();
-            }
-            Ok(())
-        };
-        let mut radar_stop = None;
-        let mut stopped = false;
-        let mut finished = || {
-            if abort.load(Ordering::Relaxed) {
-                row_abort.store(true, Ordering::Relaxed);
-            }
-            if !stopped && (robot_done.load(Ordering::Acquire) || row_abort.load(Ordering::Relaxed))
-            {
-                stopped = true;
-                radar_stop = Some(radar.borrow_mut().stop().map_err(|e| e.to_string()));
-            }
-            stopped
-        };
-        let mut sink = |f: &crate::dca1000::Frame| {
-            complete.push(f.is_complete());
-            frames.push(f.data.to_vec());
-            Ok(())
-        };
-        let recorded = record_frames(board, &plan, &mut start, &mut finished, &mut sink);
-        drop(start);
+        let recorded = record_frames(board, &plan, &mut sink);
+        sink.go = None;
         // Whatever ended the recording, the arm must not go on alone.
         if recorded.is_err() {
             row_abort.store(true, Ordering::Relaxed);
         }
         let driven = driver.join();
-        (recorded, driven, radar_stop)
+        (recorded, driven)
     });
-    if radar_stop.is_none() {
+    sink.drain_samples();
+    if sink.radar_stop.is_none() {
         // The recording ended without the row finishing: make sure the radar is stopped.
-        radar_stop = Some(radar.borrow_mut().stop().map_err(|e| e.to_string()));
+        sink.radar_stop = Some(sink.radar.stop().map_err(|e| e.to_string()));
+    }
+    if let Some(e) = sink.log_error.take() {
+        return Err(ScanError::Log(e));
     }
     let report = recorded.map_err(|source| ScanError::Board { row: index, source })?;
     let record = match driven {
@@ -420,7 +531,7 @@ fn record_row(
             )));
         }
     };
-    if let Some(Err(message)) = radar_stop {
+    if let Some(Err(message)) = sink.radar_stop.take() {
         return Err(ScanError::Radar {
             row: index,
             message,
@@ -436,24 +547,15 @@ fn record_row(
             });
         }
     }
-    let shift_s = crate::dca1000::board::signed_seconds(robot_epoch, epoch);
-    let rtde = record
-        .samples
-        .into_iter()
-        .map(|mut s| {
-            s.host_s += shift_s;
-            s
-        })
-        .collect();
     Ok(RowRecording {
         row: index,
         attempt,
         direction: row.direction,
         usable_x_m: row.usable_x_m,
-        frames,
-        complete,
+        frames: sink.frames,
+        complete: sink.complete,
         arrivals: report.arrivals.clone(),
-        rtde,
+        rtde: sink.rtde,
         report,
         outcome: record.outcome,
         rtde_gaps: record.gaps,

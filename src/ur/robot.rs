@@ -88,12 +88,14 @@ pub trait Robot {
         abort: &AtomicBool,
     ) -> Result<RowOutcome, RobotError>;
     /// Drives one row: to its start, then along it at the spec's speed; `abort` as for
-    /// [`move_to`](Self::move_to).
+    /// [`move_to`](Self::move_to). Each of the row's RTDE samples also goes to `on_sample` as
+    /// it arrives.
     fn drive_row(
         &mut self,
         row: &Row,
         spec: &ScanSpec,
         abort: &AtomicBool,
+        on_sample: &mut dyn FnMut(&Sample),
     ) -> Result<RowRecord, RobotError>;
     /// Stops motion now.
     fn stop(&mut self) -> Result<(), RobotError>;
@@ -260,6 +262,7 @@ impl UrRobot {
         timeout: Duration,
         samples: &mut Vec<Sample>,
         abort: &AtomicBool,
+        on_sample: &mut dyn FnMut(&Sample),
     ) -> Result<RowOutcome, RobotError> {
         let first = samples.len();
         self.kick_watchdog();
@@ -270,6 +273,7 @@ impl UrRobot {
         let mut checked = first;
         loop {
             self.pump(Duration::from_millis(10), samples)?;
+            samples.iter().skip(checked).for_each(&mut *on_sample);
             if abort.load(Ordering::Relaxed) {
                 self.send_script("stopl(2.0)\n")?;
                 return Ok(RowOutcome::Aborted);
@@ -331,6 +335,7 @@ impl Robot for UrRobot {
         row: &Row,
         spec: &ScanSpec,
         abort: &AtomicBool,
+        on_sample: &mut dyn FnMut(&Sample),
     ) -> Result<RowRecord, RobotError> {
         self.check_ready()?;
         let gaps_before = self.gaps;
@@ -352,7 +357,14 @@ impl Robot for UrRobot {
         );
         let mut samples = Vec::new();
         let timeout = Duration::from_secs_f64(row.duration_s * 1.5 + 5.0);
-        let outcome = self.run_move(&program, &row.end_pose, timeout, &mut samples, abort)?;
+        let outcome = self.run_move(
+            &program,
+            &row.end_pose,
+            timeout,
+            &mut samples,
+            abort,
+            on_sample,
+        )?;
         Ok(RowRecord {
             index: row.index,
             samples,
@@ -424,7 +436,7 @@ impl UrRobot {
                 + 5.0,
         );
         let script = movel_script(p, spec.speed_m_per_s, spec.accel_m_per_s2);
-        self.run_move(&script, p, t, &mut Vec::new(), abort)
+        self.run_move(&script, p, t, &mut Vec::new(), abort, &mut |_| {})
     }
 
     /// The index of the `timestamp` field in samples.
