@@ -34,6 +34,7 @@
 pub mod align;
 pub mod bench;
 pub mod capture;
+pub mod daemon;
 pub mod dca1000;
 pub mod eval;
 pub mod geometry;

@@ -21,8 +21,11 @@ struct Args {
     /// No progress bars or progress log lines.
     #[arg(short, long, global = true)]
     quiet: bool,
+    /// Run the daemon with this lab config (when no subcommand is given).
+    #[arg(long)]
+    config: Option<PathBuf>,
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Subcommand)]
@@ -30,6 +33,32 @@ enum Command {
     /// Start the simulated lab in-process, scan the demo aperture through the real clients,
     /// reconstruct, score against the scene's truth and print where the files are.
     Demo(cli::demo::DemoArgs),
+    /// Talk to a running daemon over its control port.
+    Ctl(cli::ctl::CtlArgs),
+    /// Rebuild a recorded scan from its raw frames and RTDE samples: align and reconstruct
+    /// again into OUT/capture and OUT/recon.
+    Replay {
+        /// The scan's recording.
+        mcap: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Use this config instead of the one recorded in the file.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Write a recorded scan as a capture directory v1.
+    Export {
+        mcap: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// MCAP tools.
+    Mcap {
+        #[command(subcommand)]
+        which: McapCommand,
+    },
     /// Simulate a scan of a scene and write a capture directory v1 with its ground truth.
     Simulate {
         /// Scene file (TOML); see the README for the format.
@@ -146,6 +175,17 @@ enum SimCommand {
 }
 
 #[derive(Subcommand)]
+enum McapCommand {
+    /// Salvage a recording whose writer died (kill -9, full disk): every whole chunk is
+    /// copied into a new finished file [default: FILE with extension .recovered.mcap].
+    Recover {
+        file: PathBuf,
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
 enum RobotCommand {
     /// Robot mode, safety status, remote control and TCP pose.
     Status(cli::robot::StatusArgs),
@@ -179,7 +219,18 @@ fn main() -> std::process::ExitCode {
         .with_writer(std::io::stderr)
         .with_target(false)
         .init();
-    let result = match args.command {
+    let Some(command) = args.command else {
+        return match args.config {
+            Some(config) => report(cli::daemon::run(&config, args.quiet)),
+            None => {
+                eprintln!(
+                    "error: give a subcommand, or --config LAB.toml to run the daemon (see --help)"
+                );
+                std::process::ExitCode::FAILURE
+            }
+        };
+    };
+    let result = match command {
         Command::Simulate { scene, out, force } => {
             cli::simulate::run(&scene, &out, force, args.quiet)
         }
@@ -229,6 +280,16 @@ fn main() -> std::process::ExitCode {
         } => cli::bench::stream(a),
         Command::Profile { cfg } => cli::profile::run(&cfg),
         Command::Demo(a) => cli::demo::run(&a, args.quiet),
+        Command::Ctl(a) => cli::ctl::run(&a, args.quiet),
+        Command::Replay { mcap, out, config } => {
+            cli::replay::replay(&mcap, &out, config.as_deref(), args.quiet)
+        }
+        Command::Export { mcap, out, config } => {
+            cli::replay::export(&mcap, &out, config.as_deref())
+        }
+        Command::Mcap {
+            which: McapCommand::Recover { file, out },
+        } => cli::replay::recover_file(&file, out),
         Command::Capture {
             which: CaptureCommand::Raw(a),
         } => cli::capture::raw(a, args.quiet),
@@ -245,6 +306,10 @@ fn main() -> std::process::ExitCode {
             which: RobotCommand::Log(a),
         } => cli::robot::log(a, args.quiet),
     };
+    report(result)
+}
+
+fn report(result: anyhow::Result<()>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -57,8 +57,8 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     let truth = truth_of(&sim.truth_mesh);
     let progress = Progress::new("scan rows", setup.plan.rows.len() as u64, quiet);
     let events = |e: JobEvent| match e {
-        JobEvent::Row(r) if r.accepted => progress.inc(1),
-        JobEvent::Row(r) => progress.set_message(&format!(
+        JobEvent::Row { row: r, .. } if r.accepted => progress.inc(1),
+        JobEvent::Row { row: r, .. } => progress.set_message(&format!(
             "row {} again: {}",
             r.row + 1,
             r.problem.unwrap_or_default()

@@ -3,10 +3,13 @@
 
 pub mod bench;
 pub mod capture;
+pub mod ctl;
+pub mod daemon;
 pub mod demo;
 pub mod eval;
 pub mod inspect;
 pub mod profile;
 pub mod reconstruct;
+pub mod replay;
 pub mod robot;
 pub mod simulate;

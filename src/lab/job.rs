@@ -122,11 +122,24 @@ impl ScanPaths {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum JobEvent {
-    State { state: String, scan: String },
-    Row(RowSummary),
-    Stage { stage: String, scan: String },
+    State {
+        state: String,
+        scan: String,
+    },
+    Row {
+        scan: String,
+        #[serde(flatten)]
+        row: RowSummary,
+    },
+    Stage {
+        stage: String,
+        scan: String,
+    },
     Result(Box<JobResult>),
-    Error { scan: String, message: String },
+    Error {
+        scan: String,
+        message: String,
+    },
 }
 
 /// The job's result (`scan.json`).
@@ -192,6 +205,7 @@ pub fn recording_metadata(
 
 /// Forwards the scan's log to the recorder and its verdicts to the events.
 struct Tee<'a, W: std::io::Write + std::io::Seek> {
+    scan: &'a str,
     recorder: &'a mut McapRecorder<W>,
     events: &'a (dyn Fn(JobEvent) + Sync),
 }
@@ -211,7 +225,10 @@ impl<W: std::io::Write + std::io::Seek> ScanLog for Tee<'_, W> {
     }
     fn progress(&mut self, summary: &RowSummary) {
         self.recorder.progress(summary);
-        (self.events)(JobEvent::Row(summary.clone()));
+        (self.events)(JobEvent::Row {
+            scan: self.scan.into(),
+            row: summary.clone(),
+        });
     }
     fn tick(&mut self) -> Result<(), String> {
         ScanLog::tick(self.recorder)
@@ -298,6 +315,7 @@ pub fn run_live(
         devices,
         epoch,
         &mut Tee {
+            scan: job.name,
             recorder: &mut recorder,
             events,
         },
