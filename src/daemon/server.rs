@@ -301,8 +301,14 @@ async fn handle(shared: &Arc<Shared>, request: Request) -> String {
     match request {
         Request::Status => {
             let status = shared.status();
-            json!({"ok": true, "status": status, "uptime_s": shared.started.elapsed().as_secs_f64()})
-                .to_string()
+            // In the simulated lab, the simulators' own counters (what was injected).
+            let sim = shared.sim.as_ref().map(|s| {
+                let (board, radar) = s.chain.stats();
+                json!({"dca1000": board, "radar_cli": radar, "render": s.frames.stats()})
+            });
+            json!({"ok": true, "status": status, "sim": sim,
+                "uptime_s": shared.started.elapsed().as_secs_f64()})
+            .to_string()
         }
         Request::Abort => {
             let running = shared.busy.load(Ordering::Acquire);

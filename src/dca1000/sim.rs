@@ -229,6 +229,8 @@ pub struct SimStats {
     pub malformed_commands: u64,
     pub recordings: u64,
     pub packets_sent: u64,
+    /// Packets the injector dropped in recordings before the current one.
+    pub dropped_in_earlier_recordings: u64,
     /// Packets sent more than 1 ms after they were due because the source was late.
     pub packets_late: u64,
     /// The latest of them, milliseconds after due.
@@ -291,7 +293,12 @@ impl BoardCore {
                 self.recording_since = Some(now);
                 self.lvds_seen_or_reported = false;
                 self.streaming = None;
-                self.injector = FaultInjector::new(self.config.faults.clone());
+                // Each recording draws its own faults: the seed advances with the count.
+                self.stats.dropped_in_earlier_recordings += self.injector.truth().dropped;
+                self.injector = FaultInjector::new(FaultConfig {
+                    seed: self.config.faults.seed.wrapping_add(self.stats.recordings),
+                    ..self.config.faults.clone()
+                });
                 self.stats.recordings += 1;
                 if let Some(plan) = self.config.autostart {
                     self.sensor_start(plan, now);

@@ -18,7 +18,7 @@ use crate::ur::rtde::RtdeConfig;
 /// Why the devices could not be brought up.
 #[derive(Debug, thiserror::Error)]
 pub enum ConnectError {
-    #[error("DCA1000: {0}")]
+    #[error(transparent)]
     Board(#[from] BoardError),
     #[error("radar: {0}")]
     Radar(#[from] CliError),

@@ -324,7 +324,16 @@ pub fn run_live(
     let scan = match scanned {
         Ok(s) => s,
         Err(e) => {
-            // Keep what was recorded: say why it ended and finish the file if the writer can.
+            if let Some(at) = recorder.failed_at() {
+                // The scan stopped because the recording failed: say why and how fast.
+                return Err(JobError::Record(format!(
+                    "{}{}; the scan stopped {:.1} ms after the first failed write",
+                    recorder.failure().unwrap_or("write failed"),
+                    e.row().map(|r| format!(" (row {r})")).unwrap_or_default(),
+                    at.elapsed().as_secs_f64() * 1e3
+                )));
+            }
+            // Keep what was recorded: say why it ended and finish the file.
             let host_s = epoch.elapsed().as_secs_f64();
             if recorder.log(host_s, 4, &format!("scan ended: {e}")).is_ok() {
                 recorder.finish().ok();

@@ -69,6 +69,21 @@ pub enum ScanError {
     Log(String),
 }
 
+impl ScanError {
+    /// The row the error happened at, if any.
+    pub fn row(&self) -> Option<usize> {
+        match self {
+            ScanError::Board { row, .. }
+            | ScanError::Robot { row, .. }
+            | ScanError::Radar { row, .. }
+            | ScanError::Align { row, .. }
+            | ScanError::SafetyStop { row, .. }
+            | ScanError::Aborted { row } => Some(*row),
+            _ => None,
+        }
+    }
+}
+
 /// Everything a scan needs that follows from the config, the profile and the request.
 #[derive(Debug, Clone)]
 pub struct ScanSetup {

@@ -73,6 +73,7 @@ struct Channels {
 pub struct McapRecorder<W: Write + Seek> {
     writer: Option<Writer<W>>,
     failed: Option<String>,
+    failed_at: Option<Instant>,
     channels: Channels,
     sequence: u32,
     epoch_unix_ns: u64,
@@ -170,6 +171,7 @@ impl<W: Write + Seek> McapRecorder<W> {
         Ok(Self {
             writer: Some(writer),
             failed: None,
+            failed_at: None,
             channels,
             sequence: 0,
             epoch_unix_ns,
@@ -201,6 +203,11 @@ impl<W: Write + Seek> McapRecorder<W> {
         self.failed.as_deref()
     }
 
+    /// When the first write failed.
+    pub fn failed_at(&self) -> Option<Instant> {
+        self.failed_at
+    }
+
     /// Runs `f` on the writer unless the recorder has failed; a failure sticks.
     fn with_writer(
         &mut self,
@@ -217,8 +224,14 @@ impl<W: Write + Seek> McapRecorder<W> {
             });
         };
         f(writer).map_err(|e| {
-            let message = e.to_string();
+            let mut message = e.to_string();
+            let mut source = std::error::Error::source(&e);
+            while let Some(s) = source {
+                message = format!("{message}: {s}");
+                source = s.source();
+            }
             self.failed = Some(message.clone());
+            self.failed_at = Some(Instant::now());
             RecordError::Write(message)
         })
     }

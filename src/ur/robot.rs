@@ -130,6 +130,8 @@ struct FieldIndex {
     pose: usize,
     runtime: usize,
     safety: usize,
+    /// `actual_TCP_speed`, when in the recipe.
+    speed: Option<usize>,
 }
 
 /// Pose within this distance of a target counts as at the target, metres.
@@ -178,6 +180,7 @@ impl UrRobot {
             pose: find("actual_TCP_pose")?,
             runtime: find("runtime_state")?,
             safety: find("safety_mode")?,
+            speed: find("actual_TCP_speed").ok(),
         };
         let rtde = RtdeClient::spawn(addresses.rtde.clone());
         let mut robot = Self {
@@ -276,6 +279,7 @@ impl UrRobot {
             samples.iter().skip(checked).for_each(&mut *on_sample);
             if abort.load(Ordering::Relaxed) {
                 self.send_script("stopl(2.0)\n")?;
+                self.await_standstill(samples, on_sample)?;
                 return Ok(RowOutcome::Aborted);
             }
             if last_kick.elapsed() >= Duration::from_millis(50) {
@@ -437,6 +441,36 @@ impl UrRobot {
         );
         let script = movel_script(p, spec.speed_m_per_s, spec.accel_m_per_s2);
         self.run_move(&script, p, t, &mut Vec::new(), abort, &mut |_| {})
+    }
+
+    /// After a `stopl`, follows RTDE until the TCP speed is below 1 mm/s (at most 500 ms), so
+    /// that the recording shows the arm at rest.
+    fn await_standstill(
+        &mut self,
+        samples: &mut Vec<Sample>,
+        on_sample: &mut dyn FnMut(&Sample),
+    ) -> Result<(), RobotError> {
+        let speed_at = self.at.speed;
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_millis(500) {
+            let before = samples.len();
+            self.pump(Duration::from_millis(10), samples)?;
+            samples.iter().skip(before).for_each(&mut *on_sample);
+            let resting =
+                samples
+                    .iter()
+                    .skip(before)
+                    .any(|s| match speed_at.and_then(|i| s.values.get(i)) {
+                        Some(Value::Vector6d(v)) => {
+                            (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() < 0.001
+                        }
+                        _ => false,
+                    });
+            if resting {
+                break;
+            }
+        }
+        Ok(())
     }
 
     /// The index of the `timestamp` field in samples.

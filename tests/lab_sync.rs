@@ -1,0 +1,194 @@
+//! Time synchronisation in the simulated lab (research/protocols.md D3 step 3): a point target
+//! scanned with one forward and one backward row. A timing error δt moves each row's antennas
+//! by v·δt along its own direction, so the target focuses at x ± v·δt: the two rows disagree by
+//! 2·v·δt. The live alignment must make them agree within 0.1 mm; the same rows re-aligned with
+//! a deliberate 2 ms error must not (the check can fail).
+
+use std::net::{TcpListener, UdpSocket};
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use mmnormd::align::RowAlignment;
+use mmnormd::capture::Capture;
+use mmnormd::dca1000::Frame;
+use mmnormd::dca1000::packet::PacketArrival;
+use mmnormd::lab::LabConfig;
+use mmnormd::lab::devices::LabDevices;
+use mmnormd::lab::scan::{
+    RowRecording, RowSummary, ScanLog, ScanSetup, align_recording, build_capture, run_scan,
+};
+use mmnormd::lab::simlab::SimLab;
+use mmnormd::ur::rtde::Sample;
+
+/// Keeps every row attempt.
+#[derive(Default)]
+struct Keep {
+    rows: Vec<(RowRecording, RowAlignment)>,
+}
+
+impl ScanLog for Keep {
+    fn frame(&mut self, _: usize, _: u32, _: &Frame) -> Result<(), String> {
+        Ok(())
+    }
+    fn packet(&mut self, _: usize, _: u32, _: &PacketArrival) -> Result<(), String> {
+        Ok(())
+    }
+    fn rtde(&mut self, _: usize, _: u32, _: &Sample) -> Result<(), String> {
+        Ok(())
+    }
+    fn row(&mut self, rec: &RowRecording, aligned: &RowAlignment) -> Result<(), String> {
+        self.rows.push((rec.clone(), aligned.clone()));
+        Ok(())
+    }
+    fn progress(&mut self, _: &RowSummary) {}
+}
+
+const TARGET_M: [f64; 3] = [0.45, -0.20, 0.05];
+
+/// The x (metres) at which the row's echoes focus on the line through the target along x:
+/// the peak of |Σ h·exp(−j2πf(d + offset)/c)| on a 10 µm grid, refined by a parabola.
+fn focus_x_m(capture: &Capture) -> f64 {
+    let c = mmnormd::SPEED_OF_LIGHT_M_PER_S;
+    let grid: Vec<f64> = (-300..=300)
+        .map(|k| TARGET_M[0] + k as f64 * 1e-5)
+        .collect();
+    let power: Vec<f64> = grid
+        .iter()
+        .map(|&x| {
+            let p = [x, TARGET_M[1], TARGET_M[2]];
+            let (mut re, mut im) = (0.0f64, 0.0f64);
+            for a in 0..capture.antennas() {
+                let d = |q: [f64; 3]| {
+                    ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt()
+                };
+                let path = d(capture.tx_m[a]) + d(capture.rx_m[a]) + capture.range_offset_m;
+                for (k, h) in capture.chirp(a).iter().enumerate() {
+                    let phase =
+                        -std::f64::consts::TAU * (capture.plan.frequency_hz(k) * path / c).fract();
+                    let (s, co) = phase.sin_cos();
+                    re += f64::from(h.re) * co - f64::from(h.im) * s;
+                    im += f64::from(h.re) * s + f64::from(h.im) * co;
+                }
+            }
+            re * re + im * im
+        })
+        .collect();
+    let i = (1..power.len() - 1)
+        .max_by(|&a, &b| power[a].total_cmp(&power[b]))
+        .unwrap();
+    let (l, m, r) = (power[i - 1], power[i], power[i + 1]);
+    let shift = 0.5 * (l - r) / (l - 2.0 * m + r);
+    grid[i] + shift * 1e-5
+}
+
+fn free_tcp() -> i64 {
+    i64::from(
+        TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port(),
+    )
+}
+
+fn free_udp(ip: &str) -> i64 {
+    i64::from(
+        UdpSocket::bind((ip, 0))
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port(),
+    )
+}
+
+#[test]
+fn forward_and_backward_rows_over_a_point_target_agree_within_a_tenth_of_a_millimetre() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = dir.path().join("point.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "description = \"point target\"\n[radar]\nprofile = \"{}/firmware_cfg/iwr1443_demo.cfg\"\nrange_offset_m = 0.15\n\
+             [aperture]\nwidth_m = 0.08\nheight_m = 0.0\nz_m = 0.32\ncenter_m = [0.45, -0.2]\nlayout = \"iwr1443boost\"\n\
+             [noise]\nsnr_db = 30.0\nseed = 3\n[[object]]\nshape = \"point\"\nrcs_m2 = 0.01\nposition_m = [{}, {}, {}]\n",
+            root.display(),
+            TARGET_M[0],
+            TARGET_M[1],
+            TARGET_M[2]
+        ),
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(root.join("config/sim.toml"))
+        .unwrap()
+        .replace("\"../", &format!("\"{}/", root.display()));
+    let mut t: toml::Table = toml::from_str(&text).unwrap();
+    let link = dir.path().join("radar-cli").display().to_string();
+    let mut set = |section: &str, key: &str, v: toml::Value| {
+        t[section].as_table_mut().unwrap().insert(key.into(), v);
+    };
+    set("sim", "scene", scene.display().to_string().into());
+    set("sim", "radar_link", link.clone().into());
+    set("radar", "serial_port", link.into());
+    set("robot", "dashboard_port", free_tcp().into());
+    set("robot", "script_port", free_tcp().into());
+    set("robot", "rtde_port", free_tcp().into());
+    set("dca1000", "host_config_port", free_udp("127.0.0.1").into());
+    set("dca1000", "host_data_port", free_udp("127.0.0.1").into());
+    set("dca1000", "config_port", free_udp("127.0.0.2").into());
+    set("sim", "board_data_port", free_udp("127.0.0.2").into());
+    // Two rows 3.9 mm apart on either side of the target: one forward, one backward.
+    set("scan", "width_m", 0.08.into());
+    set("scan", "height_m", 0.003868.into());
+    let path = dir.path().join("lab.toml");
+    std::fs::write(&path, toml::to_string(&t).unwrap()).unwrap();
+    let lab = LabConfig::load(&path).unwrap();
+    let setup = ScanSetup::new(&lab, lab.scan.clone()).unwrap();
+    assert_eq!(setup.plan.rows.len(), 2);
+    let _sim = SimLab::start(&lab, &setup, None).unwrap();
+    let mut devices = LabDevices::connect(&lab, &setup.profile).unwrap();
+    let mut keep = Keep::default();
+    run_scan(
+        &lab,
+        &setup,
+        &mut devices.devices(),
+        Instant::now(),
+        &mut keep,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    let rows: Vec<&(RowRecording, RowAlignment)> = keep.rows.iter().collect();
+    let directions: Vec<i8> = rows.iter().map(|r| r.0.direction).collect();
+    assert!(
+        directions.contains(&1) && directions.contains(&-1),
+        "{directions:?}"
+    );
+    let names = vec!["timestamp".to_string(), "actual_TCP_pose".to_string()];
+    let focus = |lab: &LabConfig, r: &(RowRecording, RowAlignment)| {
+        // Re-align with `lab` (the live alignment when unchanged).
+        let aligned = align_recording(lab, &setup, &names, &r.0).unwrap();
+        focus_x_m(&build_capture(lab, &setup, &[(r.0.clone(), aligned)]))
+    };
+    let last = |d: i8| rows.iter().rev().find(|r| r.0.direction == d).unwrap();
+    let (fwd, bwd) = (last(1), last(-1));
+    let live = (focus(&lab, fwd), focus(&lab, bwd));
+    let mut skewed = lab.clone();
+    skewed.align.sync_offset_s = 0.002;
+    let off = (focus(&skewed, fwd), focus(&skewed, bwd));
+    let v = setup.spec.speed_m_per_s;
+    println!(
+        "point target at x = {:.3} mm: forward row focuses at {:+.4} mm, backward at {:+.4} mm: they differ by {:.4} mm; re-aligned 2 ms late: {:.4} mm (2·v·δt = {:.3} mm)",
+        TARGET_M[0] * 1e3,
+        (live.0 - TARGET_M[0]) * 1e3,
+        (live.1 - TARGET_M[0]) * 1e3,
+        (live.0 - live.1).abs() * 1e3,
+        (off.0 - off.1).abs() * 1e3,
+        2.0 * v * 0.002 * 1e3
+    );
+    assert!((live.0 - live.1).abs() < 1e-4);
+    assert!(
+        (off.0 - off.1).abs() > 2e-4,
+        "the check cannot see a 2 ms error"
+    );
+}
