@@ -2,8 +2,8 @@
 //!
 //! mmWave non-line-of-sight 3-D reconstruction (mmNorm) and the lab system around it.
 //!
-//! Data flows one way: a radar profile and a scene (or, later, the real devices) produce a
-//! [`capture::Capture`]; the capture goes to the reconstruction; the reconstruction writes a point
+//! Data flows one way: the devices (real or simulated) produce a scan, recorded to MCAP and
+//! aligned into a [`capture::Capture`] (a scene can also be simulated straight into one); the capture goes to the reconstruction; the reconstruction writes a point
 //! cloud; the evaluation scores it. Each stage reads the previous stage's plain data types and never
 //! reaches back into an earlier one.
 //!
@@ -15,7 +15,10 @@
 //! - [`ur`]: the UR5e: RTDE codec and client, Dashboard, clock mapping, raster planner, and a
 //!   simulator.
 //! - [`align`]: time alignment of radar frames with robot poses (pure functions of recorded data).
-//! - [`lab`]: `lab.toml`, the simulated radar chain and the radar-only capture sequence.
+//! - [`record`]: the MCAP recorder, recovery and the replay reader.
+//! - [`daemon`]: the control port's protocol and server, the scan worker, systemd integration.
+//! - [`lab`]: `lab.toml`, the scan pipeline and jobs, device bring-up, the simulated lab and
+//!   the radar-only capture sequence.
 //! - [`netio`]: nonblocking socket waits below the kernel tick.
 //! - [`capture`]: the in-memory capture and the on-disk *capture directory v1* (`.npy` + JSON).
 //! - [`geometry`]: triangle meshes, their file formats (STL, OBJ, PLY), primitives and a BVH.

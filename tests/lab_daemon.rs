@@ -104,11 +104,16 @@ fn mmnormd() -> Command {
 
 impl Lab {
     fn start(change: impl FnOnce(&mut toml::Table)) -> Lab {
+        Self::start_with_env(change, &[])
+    }
+
+    fn start_with_env(change: impl FnOnce(&mut toml::Table), env: &[(&str, String)]) -> Lab {
         let dir = tempfile::tempdir().unwrap();
         let (config, control) = write_config(dir.path(), change);
         let child = mmnormd()
             .args(["-q", "--config"])
             .arg(&config)
+            .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
             .spawn()
@@ -378,7 +383,40 @@ fn kill_9_mid_scan_then_recovery_loses_at_most_one_chunk() {
 #[test]
 fn sigterm_mid_scan_stops_the_arm_first_and_finishes_the_file_within_2_s() {
     let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
-    let mut lab = Lab::start(|_| {});
+    // systemd's side of sd_notify: a datagram socket, and a 200 ms watchdog.
+    let notify_dir = tempfile::tempdir().unwrap();
+    let notify_path = notify_dir.path().join("notify");
+    let notify = std::os::unix::net::UnixDatagram::bind(&notify_path).unwrap();
+    notify
+        .set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    // Read as systemd does, all the time.
+    let notices = std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        let mut messages = Vec::new();
+        let idle_until = Instant::now() + Duration::from_secs(120);
+        while Instant::now() < idle_until {
+            match notify.recv(&mut buf) {
+                Ok(n) => {
+                    let m = String::from_utf8_lossy(&buf[..n]).into_owned();
+                    let stopping = m.contains("STOPPING=1");
+                    messages.push(m);
+                    if stopping {
+                        break;
+                    }
+                }
+                Err(_) => continue,
+            }
+        }
+        messages
+    });
+    let mut lab = Lab::start_with_env(
+        |_| {},
+        &[
+            ("NOTIFY_SOCKET", notify_path.display().to_string()),
+            ("WATCHDOG_USEC", "200000".into()),
+        ],
+    );
     let mut c = Client::connect(lab.control).unwrap();
     c.start_scan(json!({"cmd": "scan", "name": "term"}));
     c.events_until(|e| e["event"] == json!("row"));
@@ -407,6 +445,17 @@ fn sigterm_mid_scan_stops_the_arm_first_and_finishes_the_file_within_2_s() {
         speed_m_per_s
     );
     assert!(took < Duration::from_secs(2));
+    let messages = notices.join().unwrap();
+    let count = |what: &str| messages.iter().filter(|m| m.contains(what)).count();
+    println!(
+        "sd_notify: READY=1 ×{}, WATCHDOG=1 ×{}, STOPPING=1 ×{}",
+        count("READY=1"),
+        count("WATCHDOG=1"),
+        count("STOPPING=1")
+    );
+    assert_eq!(count("READY=1"), 1);
+    assert!(count("WATCHDOG=1") >= 2);
+    assert_eq!(count("STOPPING=1"), 1);
     assert!(
         speed_m_per_s < 0.001,
         "the arm was still moving at {speed_m_per_s} m/s"

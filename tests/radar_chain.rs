@@ -115,8 +115,8 @@ fn a_raster_row_is_configured_captured_and_recovered_bit_exactly() {
     assert!(report.radar_commands.iter().all(|c| c.attempts == 1));
     // Decoding recovers the quantised simulated samples of every RX.
     let layout = FrameLayout::from_profile(&profile(&b.lab), b.lab.dca1000.iq_order).unwrap();
-    let first = layout.decode(&adc[..8192]).unwrap();
-    assert_eq!(first.len(), 4 * 512);
+    let first = layout.decode(&adc[..source.frame_bytes]).unwrap();
+    assert_eq!(first.len(), 4 * layout.samples_per_chirp);
     assert!(first.iter().any(|c| c.re != 0 || c.im != 0));
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
@@ -233,7 +233,8 @@ fn udp_loss_on_the_wire_is_counted_and_flagged() {
     assert_eq!(r.stream.lost, injected.dropped + drops);
     let adc = std::fs::read(out.path().join("adc_data.bin")).unwrap();
     for k in 0..source.frames() as usize {
-        let range = k * 8192..(k + 1) * 8192;
+        let fb = source.frame_bytes;
+        let range = k * fb..(k + 1) * fb;
         if !r.flagged_frame_indices.contains(&(k as u64)) {
             assert_eq!(adc[range.clone()], source.bytes[range], "frame {k}");
         }

@@ -59,10 +59,40 @@ impl DaemonHandle {
     }
 }
 
-fn notify(states: &[sd_notify::NotifyState<'_>]) {
-    if let Err(e) = sd_notify::notify(states) {
-        tracing::warn!("sd_notify: {e}");
-    }
+/// A message for systemd.
+enum Notice {
+    Ready(String),
+    Watchdog(String),
+    Stopping,
+}
+
+/// Sends notices to systemd from its own thread: a blocked notify socket must not stall the
+/// control port. Notices beyond a short queue are dropped (the next watchdog ping follows).
+fn notifier() -> Option<std::sync::mpsc::SyncSender<Notice>> {
+    std::env::var_os("NOTIFY_SOCKET")?;
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Notice>(16);
+    let spawned = std::thread::Builder::new()
+        .name("sd-notify".into())
+        .spawn(move || {
+            let mut warned = false;
+            for notice in rx {
+                use sd_notify::NotifyState as N;
+                let sent = match &notice {
+                    Notice::Ready(status) => sd_notify::notify(&[N::Ready, N::Status(status)]),
+                    Notice::Watchdog(status) => {
+                        sd_notify::notify(&[N::Watchdog, N::Status(status)])
+                    }
+                    Notice::Stopping => sd_notify::notify(&[N::Stopping]),
+                };
+                if let Err(e) = sent
+                    && !warned
+                {
+                    warned = true;
+                    tracing::warn!("sd_notify: {e} (further failures are not logged)");
+                }
+            }
+        });
+    spawned.ok().map(|_| tx)
 }
 
 impl Daemon {
@@ -125,10 +155,13 @@ impl Daemon {
     /// Serves until SIGTERM/SIGINT or `handle.stop()`, then stops cleanly.
     pub async fn serve(self, handle: Option<DaemonHandle>) -> Result<(), DaemonError> {
         let stop = handle.map(|h| h.stop).unwrap_or_default();
-        notify(&[
-            sd_notify::NotifyState::Ready,
-            sd_notify::NotifyState::Status("idle"),
-        ]);
+        let systemd = notifier();
+        let notify = |n: Notice| {
+            if let Some(tx) = &systemd {
+                tx.try_send(n).ok();
+            }
+        };
+        notify(Notice::Ready("idle".into()));
         tracing::info!(
             "mmnormd ready on {} ({})",
             self.shared.lab.control.bind,
@@ -142,15 +175,20 @@ impl Daemon {
         let mut ping = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(3600)));
         let mut term = signal(tokio::signal::unix::SignalKind::terminate())?;
         let mut int = signal(tokio::signal::unix::SignalKind::interrupt())?;
+        let mut idle = tokio::time::interval(IDLE_DRAIN);
         loop {
             tokio::select! {
+                _ = idle.tick() => {
+                    // Between jobs, keep reading the RTDE stream the robot sends.
+                    let shared = self.shared.clone();
+                    tokio::task::spawn_blocking(move || drain_idle(&shared));
+                }
                 _ = term.recv() => break,
                 _ = int.recv() => break,
                 _ = stop.notified() => break,
                 _ = ping.tick(), if watchdog.is_some() => {
                     let s = self.shared.status();
-                    let line = format!("{} {}", s.state, s.scan.unwrap_or_default());
-                    notify(&[sd_notify::NotifyState::Watchdog, sd_notify::NotifyState::Status(&line)]);
+                    notify(Notice::Watchdog(format!("{} {}", s.state, s.scan.unwrap_or_default())));
                 }
                 accepted = self.listener.accept() => {
                     let Ok((stream, _)) = accepted else { continue };
@@ -168,7 +206,11 @@ impl Daemon {
                 }
             }
         }
+        notify(Notice::Stopping);
         self.shutdown().await;
+        // Let the notifier deliver STOPPING=1.
+        drop(systemd);
+        tokio::time::sleep(Duration::from_millis(5)).await;
         Ok(())
     }
 
@@ -176,7 +218,6 @@ impl Daemon {
     /// and stops an idle arm too.
     async fn shutdown(&self) {
         let started = Instant::now();
-        notify(&[sd_notify::NotifyState::Stopping]);
         self.shared
             .abort
             .store(true, std::sync::atomic::Ordering::Relaxed);
@@ -200,6 +241,21 @@ impl Daemon {
         } else {
             tracing::info!("stopped in {waited:.3} s");
         }
+    }
+}
+
+/// How often the RTDE queue is drained between jobs.
+const IDLE_DRAIN: Duration = Duration::from_millis(200);
+
+fn drain_idle(shared: &Shared) {
+    if shared.busy.load(Ordering::Acquire) {
+        return;
+    }
+    if let Ok(mut d) = shared.devices.try_lock()
+        && let Some(devices) = d.as_mut()
+        && let Err(e) = devices.robot.drain_events()
+    {
+        tracing::warn!("robot: {e}");
     }
 }
 

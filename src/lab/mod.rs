@@ -2,12 +2,18 @@
 //! acquisition sequences that drive more than one device.
 //!
 //! - [`config`]: `lab.toml`, typed and validated before any device is touched.
-//! - [`simchain`]: the simulated radar chain (the IWR1443 CLI simulator on a PTY, the DCA1000
-//!   simulator on loopback UDP, wired so that `sensorStart` starts the stream).
+//! - [`devices`]: the devices over their real transports, configured.
+//! - [`scan`]: one scan's rows (record, `sensorStart`, `movel`, stop, align, rescan) and the
+//!   capture they make.
+//! - [`job`]: a scan job from request to result (recording, capture directory, reconstruction,
+//!   score, events), and replay.
+//! - [`simlab`]: the simulated lab in-process; [`scene_frames`]: its radar, rendering each frame
+//!   from where the simulated arm carries it; [`simchain`]: the simulated radar chain alone.
 //! - [`raw`]: the radar-only capture of research/protocols.md B4 (`mmnormd capture raw`).
 //!
-//! Each device's protocol lives in its own module ([`crate::radar`], [`crate::dca1000`]); this
-//! module only sequences them.
+//! Each device's protocol lives in its own module ([`crate::radar`], [`crate::dca1000`],
+//! [`crate::ur`]); this module only sequences them. It never opens a control port
+//! ([`crate::daemon`] does).
 
 pub mod config;
 pub mod devices;

@@ -437,6 +437,18 @@ pub fn row_problem(lab: &LabConfig, frame_loss: f64, rtde_gaps: usize) -> Option
     }
 }
 
+/// An arm move that did not complete, as the scan's error.
+fn completed(row: usize, outcome: &RowOutcome) -> Result<(), ScanError> {
+    match outcome {
+        RowOutcome::Completed => Ok(()),
+        RowOutcome::Aborted => Err(ScanError::Aborted { row }),
+        RowOutcome::SafetyStop { safety, .. } => Err(ScanError::SafetyStop {
+            row,
+            safety: safety.name().into(),
+        }),
+    }
+}
+
 /// One attempt at one row (see the module docs).
 #[allow(clippy::too_many_arguments)]
 fn record_row(
@@ -451,20 +463,13 @@ fn record_row(
 ) -> Result<RowRecording, ScanError> {
     let index = row.index;
     let robot_error = |source| ScanError::Robot { row: index, source };
-    match devices
-        .robot
-        .move_to(&row.start_pose, &setup.spec, abort)
-        .map_err(robot_error)?
-    {
-        RowOutcome::Completed => {}
-        RowOutcome::Aborted => return Err(ScanError::Aborted { row: index }),
-        RowOutcome::SafetyStop { safety, .. } => {
-            return Err(ScanError::SafetyStop {
-                row: index,
-                safety: safety.name().into(),
-            });
-        }
-    }
+    completed(
+        index,
+        &devices
+            .robot
+            .move_to(&row.start_pose, &setup.spec, abort)
+            .map_err(robot_error)?,
+    )?;
     let d = &lab.dca1000;
     let plan = RecordPlan {
         frames: if setup.profile.frames == 0 {
@@ -552,16 +557,7 @@ fn record_row(
             message,
         });
     }
-    match &record.outcome {
-        RowOutcome::Completed => {}
-        RowOutcome::Aborted => return Err(ScanError::Aborted { row: index }),
-        RowOutcome::SafetyStop { safety, .. } => {
-            return Err(ScanError::SafetyStop {
-                row: index,
-                safety: safety.name().into(),
-            });
-        }
-    }
+    completed(index, &record.outcome)?;
     Ok(RowRecording {
         row: index,
         attempt,

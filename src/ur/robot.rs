@@ -473,6 +473,12 @@ impl UrRobot {
         Ok(())
     }
 
+    /// Takes every RTDE event queued since the last call (between scans nothing else reads
+    /// them; the stream must be read continuously, protocols.md §0 fact 7).
+    pub fn drain_events(&mut self) -> Result<(), RobotError> {
+        self.pump(Duration::ZERO, &mut Vec::new())
+    }
+
     /// The index of the `timestamp` field in samples.
     pub fn timestamp_index(&self) -> usize {
         self.at.timestamp
