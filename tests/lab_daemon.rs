@@ -320,9 +320,32 @@ fn a_scan_through_the_control_port_is_recorded_replayed_bit_identically_and_scor
         "replay: points.ply and samples.npy bit-identical ({} bytes of samples)",
         live.len()
     );
-    // `list` shows it.
+    // `reconstruct` runs again on the stored capture; `list` shows both reconstructions.
+    let r = c
+        .call(json!({"cmd": "reconstruct", "scan": "e2e"}))
+        .unwrap();
+    assert_eq!(r["ok"], json!(true), "{r}");
+    let done = c.events_until(|e| matches!(e["event"].as_str(), Some("reconstructed" | "error")));
+    let again = done.last().unwrap();
+    assert_eq!(again["event"], json!("reconstructed"), "{again}");
+    assert_eq!(
+        again["points"], result["points"],
+        "the same capture, the same points"
+    );
     let list = c.call(json!({"cmd": "list"})).unwrap();
     assert_eq!(list["scans"][0]["scan"], json!("e2e"), "{list}");
+    assert_eq!(
+        list["scans"][0]["reconstructions"]
+            .as_array()
+            .unwrap()
+            .len(),
+        2,
+        "{list}"
+    );
+    let missing = c
+        .call(json!({"cmd": "reconstruct", "scan": "../etc"}))
+        .unwrap();
+    assert_eq!(missing["ok"], json!(false), "{missing}");
 }
 
 /// Unix nanoseconds now.

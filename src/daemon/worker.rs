@@ -120,7 +120,18 @@ pub fn prepare_scan(
             "name = {name:?}: a scan of that name exists"
         )));
     }
-    let setup = ScanSetup::new(&shared.lab, request.apply(&shared.lab.scan))?;
+    let spec = request.apply(&shared.lab.scan);
+    if shared.sim.is_some()
+        && (spec.width_m > shared.lab.scan.width_m + 1e-9
+            || spec.height_m > shared.lab.scan.height_m + 1e-9)
+    {
+        // The simulated scene was sampled for views from the configured aperture.
+        return Err(JobError::Request(format!(
+            "the simulated lab was started for a {:.3} × {:.3} m aperture (scan.width_m, scan.height_m); a {:.3} × {:.3} m scan needs a config that says so",
+            shared.lab.scan.width_m, shared.lab.scan.height_m, spec.width_m, spec.height_m
+        )));
+    }
+    let setup = ScanSetup::new(&shared.lab, spec)?;
     Ok((setup, name))
 }
 

@@ -397,6 +397,19 @@ mod tests {
     }
 
     #[test]
+    fn a_control_port_off_loopback_needs_a_token() {
+        let p = Path::new("config/x.toml");
+        let e = LabConfig::parse("[control]\nbind = \"0.0.0.0:7878\"\n", p).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("control.bind = 0.0.0.0:7878 is not a loopback address"),
+            "{e}"
+        );
+        let ok = LabConfig::parse("[control]\nbind = \"0.0.0.0:7878\"\ntoken = \"k3y\"\n", p);
+        assert!(ok.is_ok());
+    }
+
+    #[test]
     fn relative_paths_resolve_against_the_config_file() {
         let c = LabConfig::parse(
             "[radar]\nprofile = \"../firmware_cfg/a.cfg\"\n",

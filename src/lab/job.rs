@@ -207,6 +207,8 @@ pub fn recording_metadata(
 struct Tee<'a, W: std::io::Write + std::io::Seek> {
     scan: &'a str,
     recorder: &'a mut McapRecorder<W>,
+    /// Each row attempt's clock fits, for the `clock_fits` metadata.
+    fits: Vec<serde_json::Value>,
     events: &'a (dyn Fn(JobEvent) + Sync),
 }
 
@@ -221,6 +223,12 @@ impl<W: std::io::Write + std::io::Seek> ScanLog for Tee<'_, W> {
         self.recorder.rtde(row, attempt, s)
     }
     fn row(&mut self, rec: &RowRecording, aligned: &RowAlignment) -> Result<(), String> {
+        self.fits.push(serde_json::json!({
+            "row": rec.row,
+            "attempt": rec.attempt,
+            "radar": aligned.radar_fit,
+            "controller": aligned.controller_fit,
+        }));
         self.recorder.row(rec, aligned)
     }
     fn progress(&mut self, summary: &RowSummary) {
@@ -309,18 +317,18 @@ pub fn run_live(
         state: "scanning".into(),
         scan: job.name.into(),
     });
-    let scanned = run_scan(
-        lab,
-        job.setup,
-        devices,
-        epoch,
-        &mut Tee {
-            scan: job.name,
-            recorder: &mut recorder,
-            events,
-        },
-        abort,
-    );
+    let mut tee = Tee {
+        scan: job.name,
+        recorder: &mut recorder,
+        fits: Vec::new(),
+        events,
+    };
+    let scanned = run_scan(lab, job.setup, devices, epoch, &mut tee, abort);
+    let fits = serde_json::Value::Array(std::mem::take(&mut tee.fits)).to_string();
+    // The clock fits of every row attempt, whatever happens next.
+    recorder
+        .metadata("clock_fits", BTreeMap::from([("json".into(), fits)]))
+        .ok();
     let scan = match scanned {
         Ok(s) => s,
         Err(e) => {

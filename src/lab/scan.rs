@@ -296,15 +296,39 @@ pub fn run_scan(
                 return Err(ScanError::Aborted { row: row.index });
             }
             let rec = record_row(lab, setup, devices, log, row, attempt, epoch, abort)?;
-            let aligned =
-                align_recording(lab, setup, &names, &rec).map_err(|source| ScanError::Align {
-                    row: row.index,
-                    source,
-                })?;
+            let last_attempt = attempt == lab.recording.max_row_retries;
+            let aligned = match align_recording(lab, setup, &names, &rec) {
+                Ok(a) => a,
+                // A row that cannot be aligned (too short a stream to fit a clock) is scanned
+                // again; its raw data stay in the recording, without a row result.
+                Err(source) if last_attempt => {
+                    return Err(ScanError::Align {
+                        row: row.index,
+                        source,
+                    });
+                }
+                Err(source) => {
+                    let summary = RowSummary {
+                        row: row.index,
+                        rows,
+                        attempt,
+                        direction: row.direction,
+                        frames: rec.complete.len(),
+                        kept: 0,
+                        frame_loss: rec.frame_loss(),
+                        lost_packets: rec.report.stream.lost,
+                        rtde_gaps: rec.rtde_gaps,
+                        accepted: false,
+                        problem: Some(format!("alignment: {source}")),
+                    };
+                    log.progress(&summary);
+                    summaries.push(summary);
+                    continue;
+                }
+            };
             log.row(&rec, &aligned).map_err(ScanError::Log)?;
             let loss = rec.frame_loss();
             let problem = row_problem(lab, loss, rec.rtde_gaps);
-            let last_attempt = attempt == lab.recording.max_row_retries;
             let summary = RowSummary {
                 row: row.index,
                 rows,

@@ -16,7 +16,7 @@ use crate::ur::rtde::Value;
 pub const ADC: (&str, &str, &str) = (
     "/radar/adc",
     "mmnormd.RadarFrame",
-    r#"{"type":"object","title":"mmnormd.RadarFrame","description":"One raw radar frame as the DCA1000 delivered it: 16-bit I/Q words in TI's 4-lane layout, zero-filled where packets were lost (complete = false).","properties":{"row":{"type":"integer"},"attempt":{"type":"integer"},"frame":{"type":"integer","description":"index from sensorStart"},"complete":{"type":"boolean"},"data":{"type":"string","contentEncoding":"base64"}},"required":["row","attempt","frame","complete","data"]}"#,
+    r#"{"type":"object","title":"mmnormd.RadarFrame","description":"One raw radar frame as the DCA1000 delivered it: 16-bit I/Q words in TI's 4-lane layout, zero-filled where packets were lost (complete = false).","properties":{"row":{"type":"integer"},"attempt":{"type":"integer"},"frame":{"type":"integer","description":"index from sensorStart"},"nominal_radar_s":{"type":["number","null"],"description":"frame index × frame period: the frame's start on the radar clock"},"complete":{"type":"boolean"},"data":{"type":"string","contentEncoding":"base64"}},"required":["row","attempt","frame","complete","data"]}"#,
 );
 pub const PACKETS: (&str, &str, &str) = (
     "/radar/packets",

@@ -80,6 +80,9 @@ pub struct McapRecorder<W: Write + Seek> {
     options: RecorderOptions,
     chunk_opened: Option<Instant>,
     rtde_names: Vec<String>,
+    /// The radar's frame period (from the `mmnormd` metadata's frame timing), for each
+    /// frame's nominal time.
+    frame_period_s: Option<f64>,
     last_pose_ns: u64,
     messages: u64,
 }
@@ -178,6 +181,7 @@ impl<W: Write + Seek> McapRecorder<W> {
             options,
             chunk_opened: None,
             rtde_names: Vec::new(),
+            frame_period_s: None,
             last_pose_ns: 0,
             messages: 0,
         })
@@ -277,10 +281,14 @@ impl<W: Write + Seek> McapRecorder<W> {
         name: &str,
         entries: BTreeMap<String, String>,
     ) -> Result<(), RecordError> {
-        if name == "mmnormd"
-            && let Some(names) = entries.get("rtde_outputs")
-        {
-            self.rtde_names = serde_json::from_str(names).unwrap_or_default();
+        if name == "mmnormd" {
+            if let Some(names) = entries.get("rtde_outputs") {
+                self.rtde_names = serde_json::from_str(names).unwrap_or_default();
+            }
+            self.frame_period_s = entries
+                .get("frame_timing")
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())
+                .and_then(|t| t["frame_period_s"].as_f64());
         }
         let record = Metadata {
             name: name.into(),
@@ -341,6 +349,9 @@ impl<W: Write + Seek> McapRecorder<W> {
             "row": row,
             "attempt": attempt,
             "frame": frame.index,
+            // Seconds after the first frame's start on the radar's clock; `/scan/rows` holds
+            // the row's fit of that clock to host time.
+            "nominal_radar_s": self.frame_period_s.map(|t| frame.index as f64 * t),
             "complete": frame.is_complete(),
             "data": base64::engine::general_purpose::STANDARD.encode(&frame.data),
         });
