@@ -320,6 +320,24 @@ fn a_scan_through_the_control_port_is_recorded_replayed_bit_identically_and_scor
         "replay: points.ply and samples.npy bit-identical ({} bytes of samples)",
         live.len()
     );
+    // `export` writes the same capture directory.
+    let exported = lab.dir.path().join("export");
+    let ok = mmnormd()
+        .args(["-q", "export"])
+        .arg(&mcap)
+        .arg("--out")
+        .arg(&exported)
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    for f in ["samples.npy", "tx.npy", "rx.npy"] {
+        let a = std::fs::read(exported.join(f)).unwrap();
+        assert!(
+            a == std::fs::read(lab.data().join("e2e/capture").join(f)).unwrap(),
+            "{f}"
+        );
+    }
     // `reconstruct` runs again on the stored capture; `list` shows both reconstructions.
     let r = c
         .call(json!({"cmd": "reconstruct", "scan": "e2e"}))
@@ -689,4 +707,61 @@ fn bad_configs_are_refused_at_start_naming_field_and_value() {
         assert!(!dir.path().join("radar-cli").exists(), "{what}");
         assert!(TcpStream::connect(control).is_err(), "{what}");
     }
+}
+
+#[test]
+fn abort_stops_the_scan_and_rows_over_the_loss_limit_are_rescanned_then_reported() {
+    let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
+    let lab = Lab::start(|t| {
+        let faults = t["sim"]["dca1000_faults"].as_table_mut().unwrap();
+        faults.insert("loss_probability".into(), 0.05.into());
+        let rec = t["recording"].as_table_mut().unwrap();
+        rec.insert("max_row_retries".into(), 1.into());
+    });
+    let mut c = Client::connect(lab.control).unwrap();
+    // 5 % of packets lost flags about a quarter of the frames, far over the 1 % limit: every
+    // row is scanned twice, then reported.
+    c.start_scan(json!({"cmd": "scan", "name": "lossy", "height_m": 0.0039}));
+    let events = c.events_until(is_end);
+    let result = events.last().unwrap();
+    assert_eq!(result["event"], json!("result"), "{result}");
+    let rows: Vec<&Value> = events
+        .iter()
+        .filter(|e| e["event"] == json!("row"))
+        .collect();
+    let retried = rows.iter().filter(|e| e["attempt"] == json!(1)).count();
+    println!(
+        "rescans: {} row attempts for {} rows ({} second attempts); reported rows {}; problems: {}",
+        rows.len(),
+        result["rows"],
+        retried,
+        result["reported_rows"],
+        rows[0]["problem"]
+    );
+    assert_eq!(rows.len(), 4);
+    assert_eq!(retried, 2);
+    assert_eq!(result["reported_rows"], json!([0, 1]));
+    assert_eq!(result["rescanned_rows"], json!(2));
+    // `abort` during the next scan: the scan ends as an error at once and the daemon is idle.
+    c.start_scan(json!({"cmd": "scan", "name": "aborted"}));
+    c.events_until(|e| e["event"] == json!("row"));
+    let t = Instant::now();
+    let reply = c.call(json!({"cmd": "abort"})).unwrap();
+    assert_eq!(reply["aborting"], json!(true));
+    let end = c.events_until(is_end);
+    let took = t.elapsed();
+    let end = end.last().unwrap();
+    println!(
+        "abort: the scan ended {:.0} ms after the request: {}",
+        took.as_secs_f64() * 1e3,
+        end["message"]
+    );
+    assert_eq!(end["event"], json!("error"));
+    assert!(
+        end["message"].as_str().unwrap().contains("aborted"),
+        "{end}"
+    );
+    assert!(took < Duration::from_secs(1));
+    let status = c.call(json!({"cmd": "status"})).unwrap();
+    assert_eq!(status["status"]["state"], json!("idle"));
 }

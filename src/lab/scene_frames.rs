@@ -2,7 +2,7 @@
 //! from where the radar is at that frame's chirp, as the simulated arm's motion decides it.
 //!
 //! The board asks for a frame's bytes when its chirps end; a render worker works ahead of
-//! that, as far as the arm's motion is decided ([`crate::ur::sim::ArmState::pose_at`]): up
+//! that, as far as the arm's motion is decided ([`crate::ur::sim::state::ArmState::pose_at`]): up
 //! to the end of the running move, or up to now while the arm rests. While the arm rests,
 //! frames repeat one noise-free render with fresh noise. Frames the board had to wait for are
 //! counted by the board ([`crate::dca1000::sim::SimStats::packets_late`]).

@@ -12,7 +12,7 @@
 //! `scan_result` is written at the end.
 //!
 //! A writer that failed stays failed: the first IO error is kept, every later call returns it,
-//! and the scan that owns the recorder aborts. [`recover`] salvages a file whose writer died.
+//! and the scan that owns the recorder aborts. [`recover()`] salvages a file whose writer died.
 //! It owns the file and nothing else.
 
 pub mod faulty;
@@ -331,7 +331,7 @@ impl<W: Write + Seek> McapRecorder<W> {
     }
 
     /// Writes the summary and the footer. Call it: a file without it holds no index (but
-    /// [`recover`] still reads it).
+    /// [`recover()`] still reads it).
     pub fn finish(&mut self) -> Result<mcap::Summary, RecordError> {
         let mut summary = None;
         self.with_writer(|w| {
