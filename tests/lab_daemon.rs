@@ -621,6 +621,20 @@ fn a_hundred_clients_and_an_abusive_one_do_not_disturb_a_scan() {
     );
     let mut sleeper = Client::connect(control).unwrap();
     sleeper.send_raw(b"{\"cmd\":\"subscribe\"}\n");
+    // A client that asks and never reads: its replies pile up until the daemon drops it.
+    let flooder = TcpStream::connect(control).unwrap();
+    let asks = 20_000;
+    {
+        let mut w = flooder.try_clone().unwrap();
+        let line = b"{\"cmd\":\"status\"}\n";
+        std::thread::spawn(move || {
+            for _ in 0..asks {
+                if w.write_all(line).is_err() {
+                    break;
+                }
+            }
+        });
+    }
     abuse.send_raw(&vec![b'x'; 70 * 1024]);
     abuse.send_raw(b"\n");
     let closed = abuse.next();
@@ -642,6 +656,16 @@ fn a_hundred_clients_and_an_abusive_one_do_not_disturb_a_scan() {
     );
     assert_eq!(events.last().unwrap()["event"], json!("result"));
     assert!(p99 < 0.1, "p99 {p99} s");
+    // The flooder was cut off: reading what reached it ends in EOF before all its replies.
+    flooder
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let replies = BufReader::new(flooder)
+        .lines()
+        .map_while(Result::ok)
+        .count();
+    println!("a client that never read got {replies} of {asks} replies, then was disconnected");
+    assert!(replies < asks);
 }
 
 #[test]
