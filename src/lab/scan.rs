@@ -246,6 +246,31 @@ pub struct RowSummary {
     pub problem: Option<String>,
 }
 
+impl RowSummary {
+    /// The summary of a recorded attempt.
+    fn of(
+        rec: &RowRecording,
+        rows: usize,
+        kept: usize,
+        problem: Option<String>,
+        accepted: bool,
+    ) -> Self {
+        Self {
+            row: rec.row,
+            rows,
+            attempt: rec.attempt,
+            direction: rec.direction,
+            frames: rec.complete.len(),
+            kept,
+            frame_loss: rec.frame_loss(),
+            lost_packets: rec.report.stream.lost,
+            rtde_gaps: rec.rtde_gaps,
+            accepted,
+            problem,
+        }
+    }
+}
+
 /// Where a scan records and reports as it goes. Data arrive as they are received, so a
 /// recorder loses at most what it has not yet written when the process dies.
 pub trait ScanLog {
@@ -308,40 +333,18 @@ pub fn run_scan(
                     });
                 }
                 Err(source) => {
-                    let summary = RowSummary {
-                        row: row.index,
-                        rows,
-                        attempt,
-                        direction: row.direction,
-                        frames: rec.complete.len(),
-                        kept: 0,
-                        frame_loss: rec.frame_loss(),
-                        lost_packets: rec.report.stream.lost,
-                        rtde_gaps: rec.rtde_gaps,
-                        accepted: false,
-                        problem: Some(format!("alignment: {source}")),
-                    };
+                    let problem = Some(format!("alignment: {source}"));
+                    let summary = RowSummary::of(&rec, rows, 0, problem, false);
                     log.progress(&summary);
                     summaries.push(summary);
                     continue;
                 }
             };
             log.row(&rec, &aligned).map_err(ScanError::Log)?;
-            let loss = rec.frame_loss();
-            let problem = row_problem(lab, loss, rec.rtde_gaps);
-            let summary = RowSummary {
-                row: row.index,
-                rows,
-                attempt,
-                direction: row.direction,
-                frames: rec.complete.len(),
-                kept: aligned.frames.len(),
-                frame_loss: loss,
-                lost_packets: rec.report.stream.lost,
-                rtde_gaps: rec.rtde_gaps,
-                accepted: problem.is_none() || last_attempt,
-                problem: problem.clone(),
-            };
+            let problem = row_problem(lab, rec.frame_loss(), rec.rtde_gaps);
+            let accepted = problem.is_none() || last_attempt;
+            let summary =
+                RowSummary::of(&rec, rows, aligned.frames.len(), problem.clone(), accepted);
             log.progress(&summary);
             summaries.push(summary);
             if problem.is_none() || last_attempt {
