@@ -16,7 +16,7 @@ pub fn run(config: &Path, quiet: bool) -> Result<()> {
         .context("starting the runtime")?;
     runtime.block_on(async {
         let daemon = Daemon::start(lab, quiet).await?;
-        daemon.serve(None).await?;
+        daemon.serve().await?;
         Ok::<(), anyhow::Error>(())
     })?;
     // Threads that own devices end with the process.

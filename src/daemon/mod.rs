@@ -13,4 +13,4 @@ pub mod protocol;
 mod server;
 mod worker;
 
-pub use server::{Daemon, DaemonError, DaemonHandle};
+pub use server::{Daemon, DaemonError};

@@ -47,18 +47,6 @@ pub struct Daemon {
     clients: Arc<AtomicUsize>,
 }
 
-/// Lets an in-process caller stop a daemon (the demo).
-#[derive(Clone)]
-pub struct DaemonHandle {
-    stop: Arc<tokio::sync::Notify>,
-}
-
-impl DaemonHandle {
-    pub fn stop(&self) {
-        self.stop.notify_one();
-    }
-}
-
 /// A message for systemd.
 enum Notice {
     Ready(String),
@@ -152,9 +140,8 @@ impl Daemon {
         self.listener.local_addr().ok()
     }
 
-    /// Serves until SIGTERM/SIGINT or `handle.stop()`, then stops cleanly.
-    pub async fn serve(self, handle: Option<DaemonHandle>) -> Result<(), DaemonError> {
-        let stop = handle.map(|h| h.stop).unwrap_or_default();
+    /// Serves until SIGTERM or SIGINT, then stops cleanly.
+    pub async fn serve(self) -> Result<(), DaemonError> {
         let systemd = notifier();
         let notify = |n: Notice| {
             if let Some(tx) = &systemd {
@@ -185,7 +172,6 @@ impl Daemon {
                 }
                 _ = term.recv() => break,
                 _ = int.recv() => break,
-                _ = stop.notified() => break,
                 _ = ping.tick(), if watchdog.is_some() => {
                     let s = self.shared.status();
                     notify(Notice::Watchdog(format!("{} {}", s.state, s.scan.unwrap_or_default())));
