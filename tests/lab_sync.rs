@@ -4,7 +4,8 @@
 //! 2·v·δt. The live alignment must make them agree within 0.1 mm; the same rows re-aligned with
 //! a deliberate 2 ms error must not (the check can fail).
 
-use std::net::{TcpListener, UdpSocket};
+mod common;
+
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -82,26 +83,6 @@ fn focus_x_m(capture: &Capture) -> f64 {
     grid[i] + shift * 1e-5
 }
 
-fn free_tcp() -> i64 {
-    i64::from(
-        TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port(),
-    )
-}
-
-fn free_udp(ip: &str) -> i64 {
-    i64::from(
-        UdpSocket::bind((ip, 0))
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port(),
-    )
-}
-
 #[test]
 fn forward_and_backward_rows_over_a_point_target_agree_within_a_tenth_of_a_millimetre() {
     let dir = tempfile::tempdir().unwrap();
@@ -120,29 +101,14 @@ fn forward_and_backward_rows_over_a_point_target_agree_within_a_tenth_of_a_milli
         ),
     )
     .unwrap();
-    let text = std::fs::read_to_string(root.join("config/sim.toml"))
-        .unwrap()
-        .replace("\"../", &format!("\"{}/", root.display()));
-    let mut t: toml::Table = toml::from_str(&text).unwrap();
-    let link = dir.path().join("radar-cli").display().to_string();
-    let mut set = |section: &str, key: &str, v: toml::Value| {
-        t[section].as_table_mut().unwrap().insert(key.into(), v);
-    };
-    set("sim", "scene", scene.display().to_string().into());
-    set("sim", "radar_link", link.clone().into());
-    set("radar", "serial_port", link.into());
-    set("robot", "dashboard_port", free_tcp().into());
-    set("robot", "script_port", free_tcp().into());
-    set("robot", "rtde_port", free_tcp().into());
-    set("dca1000", "host_config_port", free_udp("127.0.0.1").into());
-    set("dca1000", "host_data_port", free_udp("127.0.0.1").into());
-    set("dca1000", "config_port", free_udp("127.0.0.2").into());
-    set("sim", "board_data_port", free_udp("127.0.0.2").into());
-    // Two rows 3.9 mm apart on either side of the target: one forward, one backward.
-    set("scan", "width_m", 0.08.into());
-    set("scan", "height_m", 0.003868.into());
-    let path = dir.path().join("lab.toml");
-    std::fs::write(&path, toml::to_string(&t).unwrap()).unwrap();
+    let (path, _) = common::write_config(dir.path(), |t| {
+        let sim = t["sim"].as_table_mut().unwrap();
+        sim.insert("scene".into(), scene.display().to_string().into());
+        // Two rows 3.9 mm apart on either side of the target: one forward, one backward.
+        let spec = t["scan"].as_table_mut().unwrap();
+        spec.insert("width_m".into(), 0.08.into());
+        spec.insert("height_m".into(), 0.003868.into());
+    });
     let lab = LabConfig::load(&path).unwrap();
     let setup = ScanSetup::new(&lab, lab.scan.clone()).unwrap();
     assert_eq!(setup.plan.rows.len(), 2);
