@@ -2,10 +2,20 @@
 //!
 //! Linux rounds `SO_RCVTIMEO`/`SO_SNDTIMEO` to the kernel tick (4 ms at HZ = 250), so a loop
 //! that must wake every 2 ms cannot wait in a blocking read. Such loops use nonblocking sockets,
-//! drain what is there, and sleep (hrtimer-precise) until their next deadline.
+//! drain what is there, and sleep (hrtimer-precise) until their next deadline. Host receive
+//! instants become seconds from an epoch with [`signed_seconds`].
 
 use std::io::{ErrorKind, Write};
 use std::time::{Duration, Instant};
+
+/// `at − epoch` in seconds, negative when `at` is earlier.
+pub fn signed_seconds(at: Instant, epoch: Instant) -> f64 {
+    if at >= epoch {
+        at.duration_since(epoch).as_secs_f64()
+    } else {
+        -epoch.duration_since(at).as_secs_f64()
+    }
+}
 
 /// Whether an IO error only means "nothing now".
 pub fn is_would_block(e: &std::io::Error) -> bool {

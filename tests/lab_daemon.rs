@@ -292,14 +292,6 @@ fn a_scan_through_the_control_port_is_recorded_replayed_bit_identically_and_scor
     assert_eq!(missing["ok"], json!(false), "{missing}");
 }
 
-/// Unix nanoseconds now.
-fn unix_ns() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as u64
-}
-
 #[test]
 fn kill_9_mid_scan_then_recovery_loses_at_most_one_chunk() {
     let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
@@ -309,7 +301,7 @@ fn kill_9_mid_scan_then_recovery_loses_at_most_one_chunk() {
     // Into the second row, mid-recording.
     c.events_until(|e| e["event"] == json!("row"));
     std::thread::sleep(Duration::from_millis(700));
-    let killed_ns = unix_ns();
+    let killed_ns = mmnormd::record::unix_now_ns();
     lab.signal("-9");
     lab.wait_exit(Duration::from_secs(5));
     let damaged = lab.data().join("killed/scan.mcap");

@@ -41,7 +41,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
         ..ScanRequest::default()
     };
     let setup = ScanSetup::new(&lab, request.apply(&lab.scan))?;
-    let name = request.folder_name(unix_s())?;
+    let name = request.folder_name(mmnormd::record::unix_now_ns() / 1_000_000_000)?;
     println!(
         "simulated lab: {} rows of {:.0} cm at {:.0} mm/s ({:.1} s of rows), radar {} frames every {:.0} ms",
         setup.plan.rows.len(),
@@ -124,10 +124,4 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     println!("result     {}", p.result.display());
     println!("demo finished in {:.1} s", started.elapsed().as_secs_f64());
     Ok(())
-}
-
-fn unix_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
 }

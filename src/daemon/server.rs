@@ -135,11 +135,6 @@ impl Daemon {
         })
     }
 
-    /// The bound control address.
-    pub fn local_addr(&self) -> Option<SocketAddr> {
-        self.listener.local_addr().ok()
-    }
-
     /// Serves until SIGTERM or SIGINT, then stops cleanly.
     pub async fn serve(self) -> Result<(), DaemonError> {
         let systemd = notifier();

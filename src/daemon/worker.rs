@@ -103,18 +103,12 @@ impl Shared {
     }
 }
 
-fn unix_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
-}
-
 /// Checks a scan request against the config before anything moves.
 pub fn prepare_scan(
     shared: &Shared,
     request: &ScanRequest,
 ) -> Result<(ScanSetup, String), JobError> {
-    let name = request.folder_name(unix_s())?;
+    let name = request.folder_name(crate::record::unix_now_ns() / 1_000_000_000)?;
     if shared.lab.recording.data_dir.join(&name).exists() {
         return Err(JobError::Request(format!(
             "name = {name:?}: a scan of that name exists"
@@ -182,7 +176,10 @@ pub fn run_reconstruct_job(shared: &Arc<Shared>, scan: String) {
         let capture = read_capture_dir(&capture_dir)
             .map_err(|e| JobError::Request(format!("scan {scan:?}: {e}")))?;
         let mut paths = ScanPaths::new(&dir);
-        paths.recon = dir.join(format!("recon-{}", unix_s()));
+        paths.recon = dir.join(format!(
+            "recon-{}",
+            crate::record::unix_now_ns() / 1_000_000_000
+        ));
         let truth = crate::capture::truth_files(&capture_dir)
             .mesh
             .and_then(|m| crate::geometry::load_mesh(&m).ok())

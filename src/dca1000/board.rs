@@ -242,7 +242,7 @@ pub fn record_frames(
                 let arrival = PacketArrival {
                     byte_offset: p.byte_offset,
                     payload_len: p.payload.len() as u32,
-                    host_s: signed_seconds(datagram.received, plan.epoch),
+                    host_s: crate::netio::signed_seconds(datagram.received, plan.epoch),
                 };
                 sink.packet(&arrival).map_err(|source| BoardError::Sink {
                     frame: p.byte_offset / plan.frame_bytes.max(1) as u64,
@@ -267,15 +267,6 @@ pub fn record_frames(
 
 /// How long packets in flight are awaited after the radar stopped.
 pub const LINGER: Duration = Duration::from_millis(100);
-
-/// `at − epoch` in seconds, negative when `at` is earlier.
-pub fn signed_seconds(at: Instant, epoch: Instant) -> f64 {
-    if at >= epoch {
-        at.duration_since(epoch).as_secs_f64()
-    } else {
-        -epoch.duration_since(at).as_secs_f64()
-    }
-}
 
 /// Passes every ready frame to the sink; returns how many.
 fn hand_out(

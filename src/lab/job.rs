@@ -27,7 +27,7 @@ use crate::geometry::{TriMesh, ply};
 use crate::radar::RadarProfile;
 use crate::recon::{ReconConfig, Reconstruction, image_volume, output, reconstruct_imaged};
 use crate::record::replay::{RecordedScan, replayed_output_names};
-use crate::record::{McapRecorder, RecorderOptions, messages};
+use crate::record::{McapRecorder, RecorderOptions, messages, unix_now_ns};
 use crate::sim::truth::{TOP_GRID_M, top_surface_with_normals};
 use crate::ur::motion::ScanSpec;
 use crate::ur::rtde::Sample;
@@ -253,12 +253,6 @@ pub struct LiveJob<'a> {
     pub truth: Option<&'a Truth>,
     pub truth_mesh: Option<&'a TriMesh>,
     pub quiet: bool,
-}
-
-fn unix_now_ns() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 /// Scans, records, reconstructs and scores. The recording is finished on every path it can

@@ -510,7 +510,7 @@ fn record_row(
         stop_delay: Duration::from_secs_f64(d.stop_delay_s),
         epoch,
     };
-    let shift_s = crate::dca1000::board::signed_seconds(devices.robot.epoch(), epoch);
+    let shift_s = crate::netio::signed_seconds(devices.robot.epoch(), epoch);
     let board = &mut *devices.board;
     let robot = &mut *devices.robot;
     let row_abort = AtomicBool::new(false);
@@ -563,7 +563,7 @@ fn record_row(
     if let Some(e) = sink.log_error.take() {
         return Err(ScanError::Log(e));
     }
-    let report = recorded.map_err(|source| ScanError::Board { row: index, source })?;
+    let mut report = recorded.map_err(|source| ScanError::Board { row: index, source })?;
     let record = match driven {
         Ok(Some(r)) => r.map_err(robot_error)?,
         Ok(None) => {
@@ -592,7 +592,7 @@ fn record_row(
         usable_x_m: row.usable_x_m,
         frames: sink.frames,
         complete: sink.complete,
-        arrivals: report.arrivals.clone(),
+        arrivals: std::mem::take(&mut report.arrivals),
         rtde: sink.rtde,
         report,
         outcome: record.outcome,

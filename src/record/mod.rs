@@ -38,6 +38,13 @@ use crate::lab::scan::{RowRecording, RowSummary, ScanLog};
 use crate::ur::rtde::Sample;
 pub use recover::{RecoverReport, recover};
 
+/// The wall clock in Unix nanoseconds (0 before 1970): MCAP log times and scan epochs.
+pub fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
 /// Why recording failed.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum RecordError {
@@ -84,7 +91,6 @@ pub struct McapRecorder<W: Write + Seek> {
     /// frame's nominal time.
     frame_period_s: Option<f64>,
     last_pose_ns: u64,
-    messages: u64,
 }
 
 /// Poses go to `/tf` and `/robot/tcp_pose` at most this often, nanoseconds (50 Hz).
@@ -183,7 +189,6 @@ impl<W: Write + Seek> McapRecorder<W> {
             rtde_names: Vec::new(),
             frame_period_s: None,
             last_pose_ns: 0,
-            messages: 0,
         })
     }
 
@@ -195,11 +200,6 @@ impl<W: Write + Seek> McapRecorder<W> {
         } else {
             self.epoch_unix_ns.saturating_sub((-offset_ns) as u64)
         }
-    }
-
-    /// Messages written so far.
-    pub fn messages(&self) -> u64 {
-        self.messages
     }
 
     /// The first failure, if any.
@@ -249,7 +249,6 @@ impl<W: Write + Seek> McapRecorder<W> {
         };
         self.with_writer(|w| w.write_to_known_channel(&header, data))?;
         self.sequence = self.sequence.wrapping_add(1);
-        self.messages += 1;
         self.chunk_opened.get_or_insert_with(Instant::now);
         self.tick()
     }
@@ -344,7 +343,7 @@ impl<W: Write + Seek> McapRecorder<W> {
 
     fn record_frame(&mut self, row: usize, attempt: u32, frame: &Frame) -> Result<(), RecordError> {
         // The frame's nominal time is not known until alignment; log it at arrival.
-        let ns = self.unix_now_ns();
+        let ns = unix_now_ns();
         let value = json!({
             "row": row,
             "attempt": attempt,
@@ -356,12 +355,6 @@ impl<W: Write + Seek> McapRecorder<W> {
             "data": base64::engine::general_purpose::STANDARD.encode(&frame.data),
         });
         self.write_json(self.channels.adc, ns, &value)
-    }
-
-    fn unix_now_ns(&self) -> u64 {
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(self.epoch_unix_ns, |d| d.as_nanos() as u64)
     }
 
     fn record_rtde(&mut self, row: usize, attempt: u32, s: &Sample) -> Result<(), RecordError> {
@@ -396,7 +389,7 @@ impl<W: Write + Seek> McapRecorder<W> {
         rec: &RowRecording,
         aligned: &RowAlignment,
     ) -> Result<(), RecordError> {
-        let ns = self.unix_now_ns();
+        let ns = unix_now_ns();
         let value = json!({
             "row": rec.row,
             "attempt": rec.attempt,
@@ -464,7 +457,7 @@ impl<W: Write + Seek> ScanLog for McapRecorder<W> {
                 summary.kept
             ),
         };
-        let ns = self.unix_now_ns();
+        let ns = unix_now_ns();
         let data = messages::encode(&messages::log_line(ns, level, &text));
         // A failed writer is reported by the next data call, which aborts the scan.
         self.write(self.channels.log, ns, &data).ok();

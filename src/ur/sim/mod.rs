@@ -250,11 +250,7 @@ impl UrSim {
             let now_s = a.host_s(Instant::now());
             a.advance(now_s);
             // Instants before boot are clamped to it by `host_s`; measure them signed.
-            let t_s = if at >= a.boot {
-                at.duration_since(a.boot).as_secs_f64()
-            } else {
-                -a.boot.duration_since(at).as_secs_f64()
-            };
+            let t_s = crate::netio::signed_seconds(at, a.boot);
             a.pose_at(t_s, now_s)
         })
     }
