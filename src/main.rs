@@ -201,6 +201,9 @@ enum BenchCommand {
     /// The pipeline on the paper's full-scale workload (60×45 cm at λ/4, 4 RX, 8.3·10⁷ voxels),
     /// stage by stage, against the exact reference on a sub-volume in the same run.
     Perf(cli::bench::PerfArgs),
+    /// The exact per-antenna kernel alone (backprojection and normal votes on a voxel cube),
+    /// in updates/s and as a fraction of the CPU's arithmetic peak; medians of repeats.
+    Kernel(cli::bench::KernelArgs),
     /// The DCA1000 receive path (reassembly and 4-lane decoding) on one core, in MB/s against
     /// the real stream rate of 2.73 MB/s.
     Stream(cli::bench::StreamArgs),
@@ -275,6 +278,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench {
             which: BenchCommand::Perf(a),
         } => cli::bench::perf(a, args.quiet),
+        Command::Bench {
+            which: BenchCommand::Kernel(a),
+        } => cli::bench::kernel(a, args.quiet),
         Command::Bench {
             which: BenchCommand::Stream(a),
         } => cli::bench::stream(a),

@@ -8,9 +8,11 @@
 //! - [`report`]: `results.csv`, the CDF plots and `report.md` beside the paper's figures;
 //! - [`scene_png`]: one picture per case (Fig. 10 style);
 //! - [`perf`]: `mmnormd bench perf`, the full-scale speed benchmark;
+//! - [`kernel`]: `mmnormd bench kernel`, the exact per-antenna kernel's throughput;
 //! - [`stream`]: `mmnormd bench stream`, the DCA1000 receive path's throughput.
 
 pub mod cache;
+pub mod kernel;
 pub mod perf;
 pub mod report;
 pub mod run;

@@ -451,7 +451,7 @@ impl Object {
 }
 
 /// The workload capture and the grid box [x0, x1, y0, y1, z0, z1].
-fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]), PerfError> {
+pub(crate) fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]), PerfError> {
     use rayon::prelude::*;
     let profile = RadarProfile::from_cfg_str(PROFILE)?;
     let plan = profile.frequency_plan();

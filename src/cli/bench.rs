@@ -1,6 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use mmnormd::bench::kernel::run_kernel_bench;
 use mmnormd::bench::perf::{PerfReport, markdown, run_perf};
 use mmnormd::bench::{BenchOptions, Suite, run_suite};
 
@@ -51,6 +52,58 @@ pub struct PerfArgs {
     /// Also write the report as a Markdown section (for `bench accuracy --include`).
     #[arg(long)]
     markdown: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct KernelArgs {
+    /// The `bench perf` capture at this scale (0.3: 1.05·10⁵ virtual channels).
+    #[arg(long, default_value_t = 0.3)]
+    scale: f64,
+    /// Edge of the voxel cube.
+    #[arg(long, default_value_t = 24)]
+    edge: usize,
+    /// Timed repeats of each kernel; the medians are reported.
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+    /// Print the report as one JSON object on the last line as well.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn kernel(a: KernelArgs, quiet: bool) -> Result<()> {
+    let r = run_kernel_bench(a.scale, a.edge, a.repeats, quiet)?;
+    println!(
+        "{} antennas × {} voxels, {} threads, medians of {}; clock {}",
+        r.antennas,
+        r.voxels,
+        r.threads,
+        r.repeats,
+        r.clock_hz
+            .map_or("unknown".to_string(), |f| format!("{:.2} GHz", f / 1e9))
+    );
+    if let Some(p) = r.peak_updates_per_s {
+        println!(
+            "arithmetic bound: {p:.3e} updates/s ({} flops per update)",
+            mmnormd::bench::kernel::FLOPS_PER_UPDATE
+        );
+    }
+    println!("| kernel | updates/s | one thread | cycles/update (one thread) | of the bound |");
+    println!("|---|---|---|---|---|");
+    for (name, t) in [("image", &r.image), ("votes", &r.votes)] {
+        println!(
+            "| {name} | {:.3e} | {:.3e} | {} | {} |",
+            t.updates_per_s,
+            t.updates_per_s_one_thread,
+            t.cycles_per_update_one_thread
+                .map_or("-".to_string(), |c| format!("{c:.1}")),
+            t.fraction_of_peak
+                .map_or("-".to_string(), |f| format!("{:.0} %", 100.0 * f)),
+        );
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+    }
+    Ok(())
 }
 
 #[derive(clap::Args)]

@@ -225,24 +225,6 @@ impl<'a> MatchedFilter<'a> {
     pub fn centre(&self, a: usize) -> [f32; 3] {
         [0, 1, 2].map(|k| 0.5 * (self.tx[a][k] + self.rx[a][k]))
     }
-
-    /// I_a(v): the interpolated range profile times exp(−j2π f_0 D/c).
-    #[inline(always)]
-    pub fn response(&self, a: usize, v: [f32; 3]) -> Complex32 {
-        let dist = |p: [f32; 3]| {
-            let d = [p[0] - v[0], p[1] - v[1], p[2] - v[2]];
-            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-        };
-        let bins = self.profiles.bins;
-        let round_trip = dist(self.tx[a]) + dist(self.rx[a]) + self.offset_m;
-        let pos = (round_trip * self.bins_per_m - self.first).clamp(0.0, self.last);
-        let k0 = (pos as usize).min(bins.saturating_sub(2));
-        let frac = pos - k0 as f32;
-        let row = &self.profiles.data[a * bins..(a + 1) * bins];
-        let x = row[k0] * (1.0 - frac) + row[(k0 + 1).min(bins - 1)] * frac;
-        let (s, c) = sin_cos_turns(round_trip * self.turns_per_m);
-        x * Complex32::new(c, -s)
-    }
 }
 
 /// (sin, cos) of 2π·`turns` in f32: reduction to the nearest quarter turn, then Taylor
@@ -280,25 +262,18 @@ pub fn backproject(
     let filter = MatchedFilter::new(capture, profiles);
     let n = filter.antennas();
     let scale = 1.0 / n.max(1) as f32;
+    let groups = filter.tx_groups();
     grid.par_slabs(Complex32::new(0.0, 0.0), progress, |_, centres, slab| {
         // Antenna-outer over L1-sized tiles of voxels: the tile's sums stay in L1 and one
         // antenna's profile row stays in cache across the tile (`recon::kernel`).
         let mut tile = Tile::default();
-        let (mut sum_re, mut sum_im) = (vec![0.0f32; TILE], vec![0.0f32; TILE]);
         for (out, tile_centres) in slab.chunks_mut(TILE).zip(centres.chunks(TILE)) {
             tile.load(tile_centres.iter().copied());
-            let m = tile.len();
-            sum_re[..m].fill(0.0);
-            sum_im[..m].fill(0.0);
-            for a in 0..n {
-                filter.tile_responses(a, &mut tile);
-                for i in 0..m {
-                    sum_re[i] += tile.re[i];
-                    sum_im[i] += tile.im[i];
-                }
+            for group in &groups {
+                filter.accumulate_group(group.clone(), &mut tile);
             }
             for (i, o) in out.iter_mut().enumerate() {
-                *o = Complex32::new(sum_re[i], sum_im[i]) * scale;
+                *o = Complex32::new(tile.re[i], tile.im[i]) * scale;
             }
         }
     })

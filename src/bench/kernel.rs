@@ -1,0 +1,189 @@
+//! `mmnormd bench kernel`: the exact per-antenna kernel alone (`recon::kernel`), in
+//! (voxel, antenna) updates per second, and as a fraction of the machine's arithmetic peak.
+//!
+//! **Workload**: the capture of `bench perf` at `scale` (0.3 gives 1.05·10⁵ virtual channels)
+//! and a cube of `edge`³ voxels at the grid's 1 mm pitch, in the middle of its box. Two
+//! kernels, each timed `repeats` times on all threads and on one, medians reported:
+//! - **image**: interpolated backprojection ([`backproject`]) over the cube;
+//! - **votes**: exact per-antenna normal votes ([`normal_field`]) on every voxel of the cube.
+//!
+//! **Peak**: the arithmetic of one update in the AVX2 kernel is [`FLOPS_PER_UPDATE`]
+//! single-precision operations (an FMA counts two). An AVX2 core with two FMA pipes does at
+//! most 32 of them per cycle, so the bound is `threads · 32 · f / 58` updates/s at clock `f`
+//! (read from `/proc/cpuinfo`; absent elsewhere).
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::perf::{PerfError, synthesize};
+use crate::recon::ReconConfig;
+use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
+use crate::recon::normals::{Candidates, normal_field};
+
+/// Single-precision operations per update in `recon::kernel::avx2` (FMA = 2): the two
+/// distances 18 (3 sub, 3 mul, 2 add, 1 sqrt each), the round trip 2, the bin 3, the
+/// interpolation 6, the carrier's turns 1, the sine and cosine 20, the rotation 6, the sum 2.
+pub const FLOPS_PER_UPDATE: f64 = 58.0;
+
+/// Single-precision operations per cycle per core with AVX2: 2 FMA pipes × 8 lanes × 2.
+const FLOPS_PER_CYCLE: f64 = 32.0;
+
+/// Why the benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum KernelBenchError {
+    #[error("--edge {0}: must lie in 4..=128")]
+    Edge(usize),
+    #[error("--repeats {0}: must be at least 1")]
+    Repeats(usize),
+    #[error(transparent)]
+    Workload(#[from] PerfError),
+    #[error("a one-thread pool: {0}")]
+    Pool(#[from] rayon::ThreadPoolBuildError),
+}
+
+/// One kernel's medians.
+#[derive(Debug, Clone, Serialize)]
+pub struct KernelTiming {
+    /// Updates per call: voxels × antennas.
+    pub updates: f64,
+    pub median_s: f64,
+    pub updates_per_s: f64,
+    pub median_one_thread_s: f64,
+    pub updates_per_s_one_thread: f64,
+    /// Cycles per update on one thread, at the clock in [`KernelReport::clock_hz`].
+    pub cycles_per_update_one_thread: Option<f64>,
+    /// `updates_per_s` over the arithmetic bound of the image kernel on all threads.
+    pub fraction_of_peak: Option<f64>,
+}
+
+/// The benchmark's result.
+#[derive(Debug, Clone, Serialize)]
+pub struct KernelReport {
+    pub antennas: usize,
+    pub voxels: usize,
+    pub threads: usize,
+    pub repeats: usize,
+    /// The CPU clock from `/proc/cpuinfo`, Hz.
+    pub clock_hz: Option<f64>,
+    /// The bound `threads · 32 · clock / 58`, updates/s.
+    pub peak_updates_per_s: Option<f64>,
+    pub image: KernelTiming,
+    pub votes: KernelTiming,
+}
+
+/// Runs the benchmark (see the module docs).
+pub fn run_kernel_bench(
+    scale: f64,
+    edge: usize,
+    repeats: usize,
+    quiet: bool,
+) -> Result<KernelReport, KernelBenchError> {
+    if !(4..=128).contains(&edge) {
+        return Err(KernelBenchError::Edge(edge));
+    }
+    if repeats == 0 {
+        return Err(KernelBenchError::Repeats(repeats));
+    }
+    let (capture, box_m) = synthesize(scale, quiet)?;
+    let voxel_m = ReconConfig::default().voxel_m;
+    let centre = [0, 1, 2].map(|q| 0.5 * (box_m[2 * q] + box_m[2 * q + 1]));
+    let cube = VoxelGrid {
+        origin_m: centre.map(|c| c - 0.5 * edge as f64 * voxel_m),
+        voxel_m,
+        dims: [edge; 3],
+    };
+    let profiles = RangeProfiles::new(&capture, &cube, ReconConfig::default().pad_factor);
+    let image = backproject(&capture, &cube, &profiles, None);
+    let everything = vec![true; cube.len()];
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let threads = rayon::current_num_threads();
+    let clock_hz = cpu_clock_hz();
+    let peak = clock_hz.map(|f| threads as f64 * FLOPS_PER_CYCLE * f / FLOPS_PER_UPDATE);
+    let updates = (cube.len() * capture.antennas()) as f64;
+    let image_call = || {
+        std::hint::black_box(backproject(&capture, &cube, &profiles, None));
+    };
+    let votes_call = || {
+        let field = normal_field(
+            &capture,
+            &cube,
+            &profiles,
+            &image,
+            &everything,
+            Candidates::Unit,
+            None,
+        );
+        std::hint::black_box(field);
+    };
+    let time = |call: &(dyn Fn() + Sync)| -> KernelTiming {
+        let median_s = median_seconds(repeats, call);
+        let median_one_thread_s = one_thread.install(|| median_seconds(repeats, call));
+        let one = updates / median_one_thread_s;
+        KernelTiming {
+            updates,
+            median_s,
+            updates_per_s: updates / median_s,
+            median_one_thread_s,
+            updates_per_s_one_thread: one,
+            cycles_per_update_one_thread: clock_hz.map(|f| f / one),
+            fraction_of_peak: peak.map(|p| updates / median_s / p),
+        }
+    };
+    Ok(KernelReport {
+        antennas: capture.antennas(),
+        voxels: cube.len(),
+        threads,
+        repeats,
+        clock_hz,
+        peak_updates_per_s: peak,
+        image: time(&image_call),
+        votes: time(&votes_call),
+    })
+}
+
+/// Median wall time of `repeats` calls, seconds.
+fn median_seconds(repeats: usize, call: &(dyn Fn() + Sync)) -> f64 {
+    let mut times: Vec<f64> = (0..repeats)
+        .map(|_| {
+            let started = Instant::now();
+            call();
+            started.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+/// The first `cpu MHz` of `/proc/cpuinfo`, Hz; None where there is none.
+fn cpu_clock_hz() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("cpu MHz"))?;
+    let mhz: f64 = line.split(':').nth(1)?.trim().parse().ok()?;
+    (mhz > 0.0).then_some(mhz * 1e6)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tiny run: every figure is finite and positive, and bad arguments are named.
+    #[test]
+    fn a_small_run_reports_positive_throughputs() {
+        let report = run_kernel_bench(0.05, 4, 1, true).unwrap();
+        assert_eq!(report.voxels, 64);
+        assert!(report.antennas > 0);
+        for t in [&report.image, &report.votes] {
+            assert!(t.updates_per_s.is_finite() && t.updates_per_s > 0.0);
+            assert!(t.updates_per_s_one_thread > 0.0);
+        }
+        assert!(matches!(
+            run_kernel_bench(0.05, 2, 1, true),
+            Err(KernelBenchError::Edge(2))
+        ));
+        assert!(matches!(
+            run_kernel_bench(0.05, 8, 0, true),
+            Err(KernelBenchError::Repeats(0))
+        ));
+    }
+}
