@@ -18,7 +18,8 @@
 //!   sign follows the capture convention; the paper's Eq. 11 prints the other sign. The 1/d
 //!   amplitude follows the paper; the authors use unit amplitude.
 //! - **Cost (Eq. 12)**: the magnitudes of the zero-padded range FFTs of the simulated and the
-//!   measured chirp over the antenna's range window (the bins the objects' box can reach), each
+//!   measured chirp over the antenna's range window (the bins the objects' box can reach; the
+//!   simulated ones are evaluated on those bins alone, by [`PaddedDftWindows`]), each
 //!   L2-normalised as in the authors' code (the paper leaves amplitude unnormalised, but the
 //!   unknown reflectivity and gain make raw amplitudes incomparable), compared in L1 and summed
 //!   over the antennas. A candidate with no hits scores as a zero spectrum, not NaN. Before
@@ -44,7 +45,7 @@ use super::trace::{RaySamples, SampledField};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::progress::Progress;
-use crate::signal::{Rng, ToneAccumulator};
+use crate::signal::{PaddedDftWindows, Rng, ToneAccumulator};
 
 /// Candidate constants for a component whose RSDF spans [f_min, f_max].
 pub fn candidates(f_min: f64, f_max: f64, step: f64, inset: f64) -> Vec<f64> {
@@ -300,7 +301,11 @@ pub fn simulate_candidates(
         })
         .collect();
 
-    // Simulated windowed spectra, [component][candidate][antenna].
+    // Simulated windowed spectra, [component][candidate][antenna], evaluated on each window's
+    // bins alone by one chirp-z transform instead of the whole padded FFT.
+    let longest = windows.iter().map(|w| w.measured.len()).max().unwrap_or(1);
+    let dft = PaddedDftWindows::new(t, fft_len, longest, &mut rustfft::FftPlanner::new());
+    let shifts: Vec<Vec<Complex32>> = windows.par_iter().map(|w| dft.shift(w.first)).collect();
     let subset = chosen.len();
     // One task per (component, antenna): its rays are marched once and every candidate level
     // reads its crossings from the same samples.
@@ -316,9 +321,10 @@ pub fn simulate_candidates(
                 (
                     ToneAccumulator::new(&capture.plan, capture.range_offset_m),
                     Vec::new(),
+                    Default::default(),
                 )
             },
-            |(tones, rays), &(n, j)| {
+            |(tones, rays, buffers), &(n, j)| {
                 let a = chosen[j];
                 let count = march_rays(&fields[n], centres[a], opts.ray_step_deg, rays);
                 let out = candidates[n]
@@ -334,15 +340,8 @@ pub fn simulate_candidates(
                         );
                         let mut chirp = vec![Complex32::new(0.0, 0.0); t];
                         tones.add_into(&mut chirp);
-                        let spectrum = canceller.spectrum(&chirp);
-                        (
-                            canceller.window(
-                                &spectrum,
-                                windows[j].first,
-                                windows[j].measured.len(),
-                            ),
-                            count,
-                        )
+                        let len = windows[j].measured.len();
+                        (dft.window(&chirp, &shifts[j], len, buffers), count)
                     })
                     .collect();
                 progress.inc(1);

@@ -8,7 +8,7 @@ pub mod czt;
 mod rng;
 mod tones;
 
-pub use czt::{Czt, CztAxes, fft_friendly};
+pub use czt::{Czt, CztAxes, PaddedDftWindows, fft_friendly};
 pub use rng::Rng;
 pub use tones::ToneAccumulator;
 

@@ -9,7 +9,7 @@
 use std::arch::x86_64::*;
 use std::f32::consts::TAU;
 
-use super::{Group, Output, Tile};
+use super::{Group, MAX_GROUP, Output, Tile};
 
 /// Lanes per step.
 const LANES: usize = 8;
@@ -57,10 +57,15 @@ struct Lanes {
 fn steps<const ADD: bool>(g: &Group, max_bin: u32, tile: &mut Tile, n: usize) {
     let (x, y, z) = (&tile.x[..n], &tile.y[..n], &tile.z[..n]);
     let (re, im) = (&mut tile.re[..n], &mut tile.im[..n]);
-    let members = g.members();
+    let members = g.members().min(MAX_GROUP);
     let splat = |v: f32| _mm256_set1_ps(v);
-    let rx: Vec<[__m256; 3]> = g.rx[..members].iter().map(|p| p.map(splat)).collect();
-    let rows: Vec<*const f32> = (0..members).map(|m| g.row(m).as_ptr().cast()).collect();
+    // Fixed arrays, not vectors: a tile of a few voxels must not pay for an allocation.
+    let mut rx = [[_mm256_setzero_ps(); 3]; MAX_GROUP];
+    let mut rows = [std::ptr::null::<f32>(); MAX_GROUP];
+    for m in 0..members {
+        rx[m] = g.rx[m].map(splat);
+        rows[m] = g.row(m).as_ptr().cast();
+    }
     let tx = g.tx.map(splat);
     let offset_m = splat(g.offset_m);
     let lanes = Lanes {
@@ -95,8 +100,7 @@ fn steps<const ADD: bool>(g: &Group, max_bin: u32, tile: &mut Tile, n: usize) {
         };
         for m in 0..members {
             // SAFETY: as above.
-            let (a_re, a_im) =
-                unsafe { response(&lanes, &v, tx_leg, &rx[m], rows[m], &mut bins) };
+            let (a_re, a_im) = unsafe { response(&lanes, &v, tx_leg, &rx[m], rows[m], &mut bins) };
             sum_re = _mm256_add_ps(sum_re, a_re);
             sum_im = _mm256_add_ps(sum_im, a_im);
         }

@@ -14,10 +14,10 @@
 //! the TX leg is computed once per voxel for the group, and the sums are loaded and stored
 //! once per group.
 //!
-//! On x86-64 with AVX2 and FMA the pass is the hand-vectorised [`avx2`] module, chosen at run
+//! On x86-64 with AVX2 and FMA the pass is the hand-vectorised `avx2` module, chosen at run
 //! time: eight voxels per step, the eight profile lookups done as eight 16-byte loads (a bin
 //! and its successor) and a register transpose, because AVX2 gathers lose to that on Zen.
-//! Elsewhere, and for a tile's last `len % 8` voxels, the scalar [`voxel_response`] runs; it
+//! Elsewhere, and for a tile's last `len % 8` voxels, the scalar `voxel_response` runs; it
 //! is the specification the AVX2 path is tested against.
 //!
 //! The tile's arrays stay in L1; the caller keeps the antenna loop outside the tile so that one
@@ -271,7 +271,11 @@ mod tests {
         };
         let profiles = RangeProfiles::new(&capture, &grid, 16);
         let filter = MatchedFilter::new(&capture, &profiles);
-        let scale = profiles.data.iter().map(|z| z.norm()).fold(0.0f32, f32::max) as f64;
+        let scale = profiles
+            .data
+            .iter()
+            .map(|z| z.norm())
+            .fold(0.0f32, f32::max) as f64;
         let centres: Vec<[f32; 3]> = (0..dims[0])
             .flat_map(|i| (0..dims[1]).flat_map(move |j| (0..dims[2]).map(move |k| (i, j, k))))
             .map(|(i, j, k)| grid.centre(i, j, k).map(|c| c as f32))
@@ -298,10 +302,13 @@ mod tests {
             tile.clear_sums();
             filter.accumulate_group(group.clone(), &mut tile);
             filter.accumulate_group(group.clone(), &mut tile);
-            for i in 0..centres.len() {
+            for (i, got) in tile.re.iter().zip(&tile.im).enumerate() {
                 let e: Complex64 = group.clone().map(|a| responses[a][i]).sum::<Complex64>() * 2.0;
-                let got = Complex32::new(tile.re[i], tile.im[i]);
-                assert!(close(e, got, 8.0 * scale), "group {group:?} voxel {i}: {e} vs {got}");
+                let got = Complex32::new(*got.0, *got.1);
+                assert!(
+                    close(e, got, 8.0 * scale),
+                    "group {group:?} voxel {i}: {e} vs {got}"
+                );
             }
         }
 
@@ -323,7 +330,10 @@ mod tests {
             scalar_span(&g, &mut tile, 0, Output::Store);
             for (i, &e) in expected.iter().enumerate() {
                 let got = Complex32::new(tile.re[i], tile.im[i]);
-                assert!(close(e, got, scale), "scalar, antenna {a} voxel {i}: {e} vs {got}");
+                assert!(
+                    close(e, got, scale),
+                    "scalar, antenna {a} voxel {i}: {e} vs {got}"
+                );
             }
         }
     }
@@ -345,7 +355,11 @@ mod tests {
         let profiles = RangeProfiles::new(&capture, &grid, 4);
         let filter = MatchedFilter::new(&capture, &profiles);
         let groups = filter.tx_groups();
-        assert_eq!(groups.len(), filter.antennas(), "monostatic: one antenna per position");
+        assert_eq!(
+            groups.len(),
+            filter.antennas(),
+            "monostatic: one antenna per position"
+        );
         let centres: Vec<[f32; 3]> = (0..grid.len())
             .map(|p| grid.centre(p / 16, p / 4 % 4, p % 4).map(|c| c as f32))
             .collect();
