@@ -12,6 +12,7 @@ use nalgebra::{Rotation3, Vector3};
 use serde::Deserialize;
 
 use crate::recon::ReconConfig;
+use crate::recon::config::KnownOccluder;
 use crate::sim::scene::ObjectGeometry;
 use crate::sim::{Scene, SceneError};
 
@@ -154,6 +155,10 @@ struct OccluderSpec {
     /// NLOS reconstructions search for echoes from this far past the sheet (one-way range).
     #[serde(default = "default_gate")]
     gate_margin_m: f64,
+    /// NLOS reconstructions know the sheet's thickness and refractive index and compensate its
+    /// delay (`recon.occluder`), as a user who knows the box does.
+    #[serde(default)]
+    compensate: bool,
 }
 
 fn default_overhang() -> f64 {
@@ -501,6 +506,12 @@ fn build_case(
                 *window,
                 "is empty once it starts past the NLOS sheet",
             ));
+        }
+        if file.occluder.compensate {
+            recon.occluder = scene.occluder.map(|o| KnownOccluder {
+                thickness_m: o.thickness_m,
+                refractive_index: o.refractive_index,
+            });
         }
     }
     Ok(Case {

@@ -3,21 +3,37 @@
 
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// A port that the daemon will bind later, chosen so that nothing else takes it meanwhile:
+/// below the kernel's ephemeral range (the outgoing connections of tests running beside this
+/// one draw their source ports from that range, so a port asked of the kernel with bind(0)
+/// and released can be taken by one of them before the daemon binds it), distinct within this
+/// process, and free when handed out (`bindable`).
+fn reserved_port(bindable: impl Fn(u16) -> bool) -> u16 {
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let ephemeral_low = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+        .ok()
+        .and_then(|t| t.split_whitespace().next()?.parse::<u32>().ok())
+        .unwrap_or(32768);
+    let (low, span) = (10_000u32, ephemeral_low.saturating_sub(10_000).max(1000));
+    // Different test binaries (one after another) start at different places.
+    let start = std::process::id().wrapping_mul(2_654_435_761) % span;
+    loop {
+        let k = NEXT.fetch_add(1, Ordering::Relaxed);
+        let port = (low + (start + k) % span) as u16;
+        if bindable(port) {
+            return port;
+        }
+    }
+}
 
 pub fn tcp_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    reserved_port(|p| TcpListener::bind(("127.0.0.1", p)).is_ok())
 }
 
 pub fn udp_port(ip: &str) -> u16 {
-    UdpSocket::bind((ip, 0))
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    reserved_port(|p| UdpSocket::bind((ip, p)).is_ok())
 }
 
 /// config/sim.toml with free ports, private paths, a small raster and `change` applied.

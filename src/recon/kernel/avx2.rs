@@ -51,8 +51,8 @@ struct Lanes {
 }
 
 /// The steps over voxels `0..n` (`n` a multiple of 8, at most `tile.len()`): the group's
-/// responses summed, then stored, or with `ADD` added to the sums. Members go two at a time,
-/// so that two independent chains (distance, lookup, carrier) interleave.
+/// responses summed, then stored, or with `ADD` added to the sums. The TX leg and the sums
+/// are computed, loaded and stored once per step for the whole group.
 #[target_feature(enable = "avx2,fma")]
 fn steps<const ADD: bool>(g: &Group, max_bin: u32, tile: &mut Tile, n: usize) {
     let (x, y, z) = (&tile.x[..n], &tile.y[..n], &tile.z[..n]);
@@ -99,7 +99,8 @@ fn steps<const ADD: bool>(g: &Group, max_bin: u32, tile: &mut Tile, n: usize) {
             (zero, zero)
         };
         for m in 0..members {
-            // SAFETY: as above.
+            // SAFETY: rows[m] starts member m's row of g.bins ≥ max_bin + 2 values (`kernel`
+            // bounds max_bin), and this function requires AVX2 and FMA.
             let (a_re, a_im) = unsafe { response(&lanes, &v, tx_leg, &rx[m], rows[m], &mut bins) };
             sum_re = _mm256_add_ps(sum_re, a_re);
             sum_im = _mm256_add_ps(sum_im, a_im);
