@@ -144,15 +144,15 @@ pub fn run_kernel_bench(
 
 /// Median wall time of `repeats` calls, seconds.
 fn median_seconds(repeats: usize, call: &(dyn Fn() + Sync)) -> f64 {
-    let mut times: Vec<f64> = (0..repeats)
-        .map(|_| {
-            let started = Instant::now();
-            call();
-            started.elapsed().as_secs_f64()
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
+    super::median(
+        (0..repeats)
+            .map(|_| {
+                let started = Instant::now();
+                call();
+                started.elapsed().as_secs_f64()
+            })
+            .collect(),
+    )
 }
 
 /// The first `cpu MHz` of `/proc/cpuinfo`, Hz; None where there is none.

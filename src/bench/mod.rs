@@ -54,6 +54,12 @@ pub enum BenchError {
     Json(#[from] serde_json::Error),
 }
 
+/// The median of timed repeats (the upper one of an even count); NaN for none.
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
 /// Maps an IO error on `path` into [`BenchError::Io`].
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
     move |source| BenchError::Io {

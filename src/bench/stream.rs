@@ -35,11 +35,6 @@ pub struct StreamBench {
     pub headroom: f64,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
 /// Runs the benchmark on the calling thread.
 pub fn run_stream_bench(frames: usize, repeats: usize, faults: bool) -> StreamBench {
     let layout = FrameLayout {
@@ -112,14 +107,14 @@ pub fn run_stream_bench(frames: usize, repeats: usize, faults: bool) -> StreamBe
         decode.push(bytes / t_decode / 1e6);
         combined.push(bytes / (t_reassemble + t_decode) / 1e6);
     }
-    let combined_mb_per_s = median(combined);
+    let combined_mb_per_s = super::median(combined);
     StreamBench {
         frames,
         frame_bytes,
         repeats: repeats.max(1),
         reorder_and_duplicates: faults,
-        reassemble_mb_per_s: median(reassemble),
-        decode_mb_per_s: median(decode),
+        reassemble_mb_per_s: super::median(reassemble),
+        decode_mb_per_s: super::median(decode),
         combined_mb_per_s,
         real_rate_mb_per_s: REAL_RATE_BYTES_PER_S / 1e6,
         headroom: combined_mb_per_s * 1e6 / REAL_RATE_BYTES_PER_S,
