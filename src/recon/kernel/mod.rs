@@ -138,6 +138,9 @@ impl MatchedFilter<'_> {
     /// `tile` to `tile.re` and `tile.im`. Antennas that do not share the first one's TX are
     /// accumulated one at a time.
     pub fn accumulate_group(&self, antennas: std::ops::Range<usize>, tile: &mut Tile) {
+        if antennas.is_empty() {
+            return;
+        }
         let shared = antennas
             .clone()
             .take(MAX_GROUP)
