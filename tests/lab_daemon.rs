@@ -28,6 +28,18 @@ fn mmnormd() -> Command {
     Command::new(env!("CARGO_BIN_EXE_mmnormd"))
 }
 
+/// `mmnormd -q SUBCOMMAND MCAP --out OUT` (replay, export); whether it succeeded.
+fn run_on_recording(subcommand: &str, mcap: &Path, out: &Path) -> bool {
+    mmnormd()
+        .args(["-q", subcommand])
+        .arg(mcap)
+        .arg("--out")
+        .arg(out)
+        .status()
+        .unwrap()
+        .success()
+}
+
 impl Lab {
     fn start(change: impl FnOnce(&mut toml::Table)) -> Lab {
         Self::start_with_env(change, &[])
@@ -228,15 +240,7 @@ fn a_scan_through_the_control_port_is_recorded_replayed_bit_identically_and_scor
     );
     // Replay rebuilds the same capture and the same points, bit for bit.
     let out = lab.dir.path().join("replay");
-    let ok = mmnormd()
-        .args(["-q", "replay"])
-        .arg(&mcap)
-        .arg("--out")
-        .arg(&out)
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok);
+    assert!(run_on_recording("replay", &mcap, &out));
     let live = std::fs::read(lab.data().join("e2e/recon/points.ply")).unwrap();
     let replayed = std::fs::read(out.join("recon/points.ply")).unwrap();
     assert!(live == replayed, "replay differs from the live run");
@@ -248,15 +252,7 @@ fn a_scan_through_the_control_port_is_recorded_replayed_bit_identically_and_scor
     );
     // `export` writes the same capture directory.
     let exported = lab.dir.path().join("export");
-    let ok = mmnormd()
-        .args(["-q", "export"])
-        .arg(&mcap)
-        .arg("--out")
-        .arg(&exported)
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok);
+    assert!(run_on_recording("export", &mcap, &exported));
     for f in ["samples.npy", "tx.npy", "rx.npy"] {
         let a = std::fs::read(exported.join(f)).unwrap();
         assert!(

@@ -86,14 +86,15 @@ pub fn run_kernel_bench(
         return Err(KernelBenchError::Repeats(repeats));
     }
     let (capture, box_m) = synthesize(scale, quiet)?;
-    let voxel_m = ReconConfig::default().voxel_m;
+    let defaults = ReconConfig::default();
+    let voxel_m = defaults.voxel_m;
     let centre = [0, 1, 2].map(|q| 0.5 * (box_m[2 * q] + box_m[2 * q + 1]));
     let cube = VoxelGrid {
         origin_m: centre.map(|c| c - 0.5 * edge as f64 * voxel_m),
         voxel_m,
         dims: [edge; 3],
     };
-    let profiles = RangeProfiles::new(&capture, &cube, ReconConfig::default().pad_factor);
+    let profiles = RangeProfiles::new(&capture, &cube, defaults.pad_factor);
     let image = backproject(&capture, &cube, &profiles, None);
     let everything = vec![true; cube.len()];
     let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;

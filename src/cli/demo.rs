@@ -41,7 +41,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
         ..ScanRequest::default()
     };
     let setup = ScanSetup::new(&lab, request.apply(&lab.scan))?;
-    let name = request.folder_name(mmnormd::record::unix_now_ns() / 1_000_000_000)?;
+    let name = request.folder_name(mmnormd::record::unix_now_s())?;
     println!(
         "simulated lab: {} rows of {:.0} cm at {:.0} mm/s ({:.1} s of rows), radar {} frames every {:.0} ms",
         setup.plan.rows.len(),

@@ -56,31 +56,53 @@ enum Notice {
 
 /// Sends notices to systemd from its own thread: a blocked notify socket must not stall the
 /// control port. Notices beyond a short queue are dropped (the next watchdog ping follows).
-fn notifier() -> Option<std::sync::mpsc::SyncSender<Notice>> {
-    std::env::var_os("NOTIFY_SOCKET")?;
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Notice>(16);
-    let spawned = std::thread::Builder::new()
-        .name("sd-notify".into())
-        .spawn(move || {
-            let mut warned = false;
-            for notice in rx {
-                use sd_notify::NotifyState as N;
-                let sent = match &notice {
-                    Notice::Ready(status) => sd_notify::notify(&[N::Ready, N::Status(status)]),
-                    Notice::Watchdog(status) => {
-                        sd_notify::notify(&[N::Watchdog, N::Status(status)])
+struct Notifier {
+    queue: std::sync::mpsc::SyncSender<Notice>,
+    /// Closed by the thread once the queue is closed and every notice sent.
+    done: std::sync::mpsc::Receiver<()>,
+}
+
+impl Notifier {
+    /// None outside systemd (no `NOTIFY_SOCKET`) or when the thread cannot start.
+    fn start() -> Option<Notifier> {
+        std::env::var_os("NOTIFY_SOCKET")?;
+        let (queue, rx) = std::sync::mpsc::sync_channel::<Notice>(16);
+        let (done_tx, done) = std::sync::mpsc::channel::<()>();
+        let spawned = std::thread::Builder::new()
+            .name("sd-notify".into())
+            .spawn(move || {
+                let _done = done_tx;
+                let mut warned = false;
+                for notice in rx {
+                    use sd_notify::NotifyState as N;
+                    let sent = match &notice {
+                        Notice::Ready(status) => sd_notify::notify(&[N::Ready, N::Status(status)]),
+                        Notice::Watchdog(status) => {
+                            sd_notify::notify(&[N::Watchdog, N::Status(status)])
+                        }
+                        Notice::Stopping => sd_notify::notify(&[N::Stopping]),
+                    };
+                    if let Err(e) = sent
+                        && !warned
+                    {
+                        warned = true;
+                        tracing::warn!("sd_notify: {e} (further failures are not logged)");
                     }
-                    Notice::Stopping => sd_notify::notify(&[N::Stopping]),
-                };
-                if let Err(e) = sent
-                    && !warned
-                {
-                    warned = true;
-                    tracing::warn!("sd_notify: {e} (further failures are not logged)");
                 }
-            }
-        });
-    spawned.ok().map(|_| tx)
+            });
+        spawned.ok().map(|_| Notifier { queue, done })
+    }
+
+    fn send(&self, notice: Notice) {
+        self.queue.try_send(notice).ok();
+    }
+
+    /// Closes the queue and waits, at most `limit`, for the notices in it to go out.
+    fn finish(self, limit: Duration) {
+        drop(self.queue);
+        // Disconnected (the thread ended) or timed out: either way, stop waiting.
+        self.done.recv_timeout(limit).ok();
+    }
 }
 
 impl Daemon {
@@ -137,10 +159,10 @@ impl Daemon {
 
     /// Serves until SIGTERM or SIGINT, then stops cleanly.
     pub async fn serve(self) -> Result<(), DaemonError> {
-        let systemd = notifier();
+        let systemd = Notifier::start();
         let notify = |n: Notice| {
-            if let Some(tx) = &systemd {
-                tx.try_send(n).ok();
+            if let Some(s) = &systemd {
+                s.send(n);
             }
         };
         notify(Notice::Ready("idle".into()));
@@ -189,9 +211,12 @@ impl Daemon {
         }
         notify(Notice::Stopping);
         self.shutdown().await;
-        // Let the notifier deliver STOPPING=1.
-        drop(systemd);
-        tokio::time::sleep(Duration::from_millis(5)).await;
+        if let Some(s) = systemd {
+            // STOPPING=1 goes out before the process ends, unless the socket is stuck.
+            tokio::task::spawn_blocking(move || s.finish(Duration::from_millis(200)))
+                .await
+                .ok();
+        }
         Ok(())
     }
 

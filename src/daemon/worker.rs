@@ -108,7 +108,7 @@ pub fn prepare_scan(
     shared: &Shared,
     request: &ScanRequest,
 ) -> Result<(ScanSetup, String), JobError> {
-    let name = request.folder_name(crate::record::unix_now_ns() / 1_000_000_000)?;
+    let name = request.folder_name(crate::record::unix_now_s())?;
     if shared.lab.recording.data_dir.join(&name).exists() {
         return Err(JobError::Request(format!(
             "name = {name:?}: a scan of that name exists"
@@ -176,10 +176,7 @@ pub fn run_reconstruct_job(shared: &Arc<Shared>, scan: String) {
         let capture = read_capture_dir(&capture_dir)
             .map_err(|e| JobError::Request(format!("scan {scan:?}: {e}")))?;
         let mut paths = ScanPaths::new(&dir);
-        paths.recon = dir.join(format!(
-            "recon-{}",
-            crate::record::unix_now_ns() / 1_000_000_000
-        ));
+        paths.recon = dir.join(format!("recon-{}", crate::record::unix_now_s()));
         let truth = crate::capture::truth_files(&capture_dir)
             .mesh
             .and_then(|m| crate::geometry::load_mesh(&m).ok())

@@ -45,6 +45,11 @@ pub fn unix_now_ns() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
+/// The wall clock in whole Unix seconds (0 before 1970): scan and reconstruction folder names.
+pub fn unix_now_s() -> u64 {
+    unix_now_ns() / 1_000_000_000
+}
+
 /// Why recording failed.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum RecordError {

@@ -3,6 +3,7 @@
 
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 /// A port that the daemon will bind later, chosen so that nothing else takes it meanwhile:
@@ -12,10 +13,13 @@ use std::sync::atomic::{AtomicU32, Ordering};
 /// process, and free when handed out (`bindable`).
 fn reserved_port(bindable: impl Fn(u16) -> bool) -> u16 {
     static NEXT: AtomicU32 = AtomicU32::new(0);
-    let ephemeral_low = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
-        .ok()
-        .and_then(|t| t.split_whitespace().next()?.parse::<u32>().ok())
-        .unwrap_or(32768);
+    static EPHEMERAL_LOW: OnceLock<u32> = OnceLock::new();
+    let ephemeral_low = *EPHEMERAL_LOW.get_or_init(|| {
+        std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+            .ok()
+            .and_then(|t| t.split_whitespace().next()?.parse::<u32>().ok())
+            .unwrap_or(32768)
+    });
     let (low, span) = (10_000u32, ephemeral_low.saturating_sub(10_000).max(1000));
     // Different test binaries (one after another) start at different places.
     let start = std::process::id().wrapping_mul(2_654_435_761) % span;
@@ -52,38 +56,18 @@ pub fn write_config(dir: &Path, change: impl FnOnce(&mut toml::Table)) -> (PathB
     };
     let link = dir.join("radar-cli").display().to_string();
     set(&mut t, "control", "bind", control.to_string().into());
-    set(
-        &mut t,
-        "robot",
-        "dashboard_port",
-        i64::from(tcp_port()).into(),
-    );
-    set(&mut t, "robot", "script_port", i64::from(tcp_port()).into());
-    set(&mut t, "robot", "rtde_port", i64::from(tcp_port()).into());
-    set(
-        &mut t,
-        "dca1000",
-        "host_config_port",
-        i64::from(udp_port("127.0.0.1")).into(),
-    );
-    set(
-        &mut t,
-        "dca1000",
-        "host_data_port",
-        i64::from(udp_port("127.0.0.1")).into(),
-    );
-    set(
-        &mut t,
-        "dca1000",
-        "config_port",
-        i64::from(udp_port("127.0.0.2")).into(),
-    );
-    set(
-        &mut t,
-        "sim",
-        "board_data_port",
-        i64::from(udp_port("127.0.0.2")).into(),
-    );
+    for key in ["dashboard_port", "script_port", "rtde_port"] {
+        set(&mut t, "robot", key, i64::from(tcp_port()).into());
+    }
+    // The host's sockets on 127.0.0.1, the simulated board's on 127.0.0.2.
+    for (section, key, ip) in [
+        ("dca1000", "host_config_port", "127.0.0.1"),
+        ("dca1000", "host_data_port", "127.0.0.1"),
+        ("dca1000", "config_port", "127.0.0.2"),
+        ("sim", "board_data_port", "127.0.0.2"),
+    ] {
+        set(&mut t, section, key, i64::from(udp_port(ip)).into());
+    }
     set(&mut t, "sim", "radar_link", link.clone().into());
     set(&mut t, "radar", "serial_port", link.into());
     let data = dir.join("captures").display().to_string();

@@ -26,9 +26,9 @@ pub(super) fn kernel(g: &Group, tile: &mut Tile, output: Output) -> usize {
         return 0;
     }
     let n = tile.len() / LANES * LANES;
-    // Every lookup reads bins k and k + 1 of a member's row with k ≤ max_bin, so this bound
-    // keeps them in the row whatever the geometry says.
-    let max_bin = g.max_bin.min((g.bins - 2) as u32);
+    // Every lookup reads bins k and k + 1 of a member's row with k ≤ max_bin = bins − 2, so
+    // they stay in the row whatever the geometry says.
+    let max_bin = g.max_bin();
     // SAFETY: the CPU supports AVX2 and FMA (checked above), which is all that the
     // `target_feature` functions require.
     unsafe {
@@ -99,8 +99,8 @@ fn steps<const ADD: bool>(g: &Group, max_bin: u32, tile: &mut Tile, n: usize) {
             (zero, zero)
         };
         for m in 0..members {
-            // SAFETY: rows[m] starts member m's row of g.bins ≥ max_bin + 2 values (`kernel`
-            // bounds max_bin), and this function requires AVX2 and FMA.
+            // SAFETY: rows[m] starts member m's row of g.bins = max_bin + 2 values, and this
+            // function requires AVX2 and FMA.
             let (a_re, a_im) = unsafe { response(&lanes, &v, tx_leg, &rx[m], rows[m], &mut bins) };
             sum_re = _mm256_add_ps(sum_re, a_re);
             sum_im = _mm256_add_ps(sum_im, a_im);

@@ -92,12 +92,15 @@ struct Group<'a> {
     first: f32,
     /// Highest fractional bin, `bins − 1`.
     last: f32,
-    /// Highest lower bin of an interpolation pair, `bins − 2`.
-    max_bin: u32,
     turns_per_m: f32,
 }
 
 impl Group<'_> {
+    /// Highest lower bin of an interpolation pair, `bins − 2`.
+    fn max_bin(&self) -> u32 {
+        self.bins.saturating_sub(2) as u32
+    }
+
     fn members(&self) -> usize {
         self.rx.len().min(self.rows.len() / self.bins.max(1))
     }
@@ -167,7 +170,6 @@ impl MatchedFilter<'_> {
             bins_per_m: self.bins_per_m,
             first: self.first,
             last: self.last,
-            max_bin: bins.saturating_sub(2) as u32,
             turns_per_m: self.turns_per_m,
         };
         #[cfg(target_arch = "x86_64")]
@@ -205,7 +207,7 @@ fn voxel_response(g: &Group, member: usize, v: [f32; 3]) -> Complex32 {
     };
     let round_trip = dist(g.tx) + dist(g.rx[member]) + g.offset_m;
     let pos = (round_trip * g.bins_per_m - g.first).max(0.0).min(g.last);
-    let k = (pos as u32).min(g.max_bin) as usize;
+    let k = (pos as u32).min(g.max_bin()) as usize;
     let frac = pos - k as f32;
     let row = g.row(member);
     let Some(&lo) = row.get(k) else {
@@ -327,7 +329,6 @@ mod tests {
                 bins_per_m: filter.bins_per_m,
                 first: filter.first,
                 last: filter.last,
-                max_bin: (bins - 2) as u32,
                 turns_per_m: filter.turns_per_m,
             };
             scalar_span(&g, &mut tile, 0, Output::Store);
