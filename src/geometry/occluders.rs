@@ -16,6 +16,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::TriMesh;
+use super::vec3::{cross, dot, sub};
 
 /// Where every ray ends: an axis-aligned rectangle in a horizontal plane (the antennas).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -25,21 +26,26 @@ pub struct ViewRegion {
     pub z_m: f64,
 }
 
-#[derive(Debug, Clone, Copy)]
-struct Tri {
-    v0: [f32; 3],
-    e1: [f32; 3],
-    e2: [f32; 3],
+/// Lanes of a [`Block`].
+const LANES: usize = 8;
+
+/// Eight candidate triangles, component-major, so that one ray meets all eight in a few vector
+/// operations. Unused lanes hold a degenerate triangle, which no ray meets.
+#[derive(Debug, Clone, Copy, Default)]
+struct Block {
+    /// First vertex, then the edges to the second and third: `[component][lane]`.
+    v0: [[f32; LANES]; 3],
+    e1: [[f32; LANES]; 3],
+    e2: [[f32; LANES]; 3],
 }
 
 /// Candidate occluders of every triangle of one mesh.
 #[derive(Debug, Clone, Default)]
 pub struct FrontOccluders {
-    /// `lists[start[i]..start[i + 1]]` are triangle i's candidates; `u32::MAX` in `start[i]`
+    /// `blocks[start[i]..start[i + 1]]` hold triangle i's candidates; `u32::MAX` in `start[i]`
     /// marks a list that was too long.
     start: Vec<u32>,
-    lists: Vec<u32>,
-    tris: Vec<Tri>,
+    blocks: Vec<Block>,
 }
 
 const TOO_MANY: u32 = u32::MAX;
@@ -98,31 +104,33 @@ impl FrontOccluders {
                 (list.len() <= max_candidates).then_some(list)
             })
             .collect();
+        let corners_f32 = |f: usize| {
+            mesh.corners(f)
+                .map(|v| [v.x as f32, v.y as f32, v.z as f32])
+        };
         let mut start = Vec::with_capacity(per_triangle.len() + 1);
-        let mut lists = Vec::new();
+        let mut blocks = Vec::new();
         for entry in &per_triangle {
-            match entry {
-                Some(l) => {
-                    start.push(lists.len() as u32);
-                    lists.extend_from_slice(l);
+            let Some(list) = entry else {
+                start.push(TOO_MANY);
+                continue;
+            };
+            start.push(blocks.len() as u32);
+            for chunk in list.chunks(LANES) {
+                let mut b = Block::default();
+                for (lane, &t) in chunk.iter().enumerate() {
+                    let [a, p, q] = corners_f32(t as usize);
+                    for k in 0..3 {
+                        b.v0[k][lane] = a[k];
+                        b.e1[k][lane] = p[k] - a[k];
+                        b.e2[k][lane] = q[k] - a[k];
+                    }
                 }
-                None => start.push(TOO_MANY),
+                blocks.push(b);
             }
         }
-        start.push(lists.len() as u32);
-        let tris = (0..mesh.triangles.len())
-            .map(|f| {
-                let [a, b, c] = mesh
-                    .corners(f)
-                    .map(|v| [v.x as f32, v.y as f32, v.z as f32]);
-                Tri {
-                    v0: a,
-                    e1: [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-                    e2: [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-                }
-            })
-            .collect();
-        FrontOccluders { start, lists, tris }
+        start.push(blocks.len() as u32);
+        FrontOccluders { start, blocks }
     }
 }
 
@@ -204,26 +212,69 @@ impl FrontOccluders {
                 .iter()
                 .copied()
                 .find(|&x| x != TOO_MANY)
-                .unwrap_or(self.lists.len() as u32)
+                .unwrap_or(self.blocks.len() as u32)
         } else {
             e
         };
-        for &k in &self.lists[s as usize..end as usize] {
-            if super::bvh::ray_triangle(
-                self.tris[k as usize].v0,
-                self.tris[k as usize].e1,
-                self.tris[k as usize].e2,
-                origin,
-                dir,
-                t_max,
-            )
-            .is_some()
-            {
-                return LocalVisibility::Blocked;
-            }
+        let Some(blocks) = self.blocks.get(s as usize..end as usize) else {
+            return LocalVisibility::Unknown;
+        };
+        if any_hit(blocks, origin, dir, t_max) {
+            LocalVisibility::Blocked
+        } else {
+            LocalVisibility::Clear
         }
-        LocalVisibility::Clear
     }
+}
+
+/// Whether the ray meets any triangle of `blocks`.
+fn any_hit(blocks: &[Block], origin: [f32; 3], dir: [f32; 3], t_max: f32) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { any_hit_avx2(blocks, origin, dir, t_max) };
+    }
+    blocks.iter().any(|b| block_hit(b, origin, dir, t_max))
+}
+
+/// [`any_hit`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn any_hit_avx2(blocks: &[Block], origin: [f32; 3], dir: [f32; 3], t_max: f32) -> bool {
+    blocks.iter().any(|b| block_hit(b, origin, dir, t_max))
+}
+
+/// Möller–Trumbore on eight triangles at once: the same arithmetic, in the same order, and the
+/// same acceptance tests as [`super::bvh::ray_triangle`], lane by lane and without branches.
+// The tests are joined with `&`, not `&&` or ranges, so that every lane runs the same code.
+#[allow(clippy::manual_range_contains)]
+#[inline(always)]
+fn block_hit(b: &Block, o: [f32; 3], d: [f32; 3], t_max: f32) -> bool {
+    let mut hit = [false; LANES];
+    for (lane, h) in hit.iter_mut().enumerate() {
+        let v0 = [b.v0[0][lane], b.v0[1][lane], b.v0[2][lane]];
+        let e1 = [b.e1[0][lane], b.e1[1][lane], b.e1[2][lane]];
+        let e2 = [b.e2[0][lane], b.e2[1][lane], b.e2[2][lane]];
+        let p = cross(d, e2);
+        let det = dot(e1, p);
+        let inv = 1.0 / det;
+        let s = sub(o, v0);
+        let u = dot(s, p) * inv;
+        let q = cross(s, e1);
+        let v = dot(d, q) * inv;
+        let t = dot(e2, q) * inv;
+        *h = (det.abs() >= 1e-20)
+            & (u >= 0.0)
+            & (u <= 1.0)
+            & (v >= 0.0)
+            & (u + v <= 1.0)
+            & (t > 0.0)
+            & (t < t_max);
+    }
+    hit.iter().fold(false, |a, &h| a | h)
 }
 
 #[cfg(test)]
@@ -241,7 +292,7 @@ mod tests {
             z_m: 0.5,
         };
         let occ = FrontOccluders::build(&sphere, &view, 1e-4, 32);
-        assert!(occ.lists.is_empty() && occ.overflowing() == 0);
+        assert!(occ.blocks.is_empty() && occ.overflowing() == 0);
 
         // An L of two boxes: the inner corner shadows itself.
         let mut l = box_mesh([0.1, 0.02, 0.02], 0.01);

@@ -6,6 +6,7 @@
 
 pub mod czt;
 mod rng;
+mod spread;
 mod tones;
 
 pub use czt::{Czt, CztAxes, PaddedDftWindows, fft_friendly};

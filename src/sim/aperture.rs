@@ -106,9 +106,11 @@ impl Pattern {
         } else {
             (u[1], u[0])
         };
-        let cos_az = down / (a * a + down * down).sqrt();
-        let cos_el = down / (e * e + down * down).sqrt();
-        cos_az.powf(q_az) * cos_el.powf(q_el)
+        // cos^q = (cos²)^(q/2): one exponential of two logarithms instead of two powers.
+        let down2 = down * down;
+        let cos2_az = down2 / (a * a + down2);
+        let cos2_el = down2 / (e * e + down2);
+        (0.5 * (q_az * cos2_az.ln() + q_el * cos2_el.ln())).exp()
     }
 }
 
@@ -155,5 +157,15 @@ mod tests {
         assert!((p.gain(dir(50.0, true)) - 0.5).abs() < 1e-4);
         assert!((p.gain(dir(20.0, false)) - 0.5).abs() < 1e-4);
         assert_eq!(p.gain([0.0, 0.0, 1.0]), 0.0);
+        // Off both planes: the product of the two cosine powers, in f64.
+        let u = [0.3f64, -0.2, -(1.0f64 - 0.13).sqrt()];
+        let (q_az, q_el) = p
+            .exponents
+            .map(|(a, e)| (f64::from(a), f64::from(e)))
+            .unwrap();
+        let want = (-u[2] / (u[0] * u[0] + u[2] * u[2]).sqrt()).powf(q_az)
+            * (-u[2] / (u[1] * u[1] + u[2] * u[2]).sqrt()).powf(q_el);
+        let got = f64::from(p.gain(u.map(|c| c as f32)));
+        assert!((got - want).abs() < 1e-6 * want, "{got} against {want}");
     }
 }
