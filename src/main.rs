@@ -207,6 +207,9 @@ enum BenchCommand {
     /// The DCA1000 receive path (reassembly and 4-lane decoding) on one core, in MB/s against
     /// the real stream rate of 2.73 MB/s.
     Stream(cli::bench::StreamArgs),
+    /// Chirp synthesis (the simulator's inner sum): one chirp of R reflections swept directly
+    /// and gridded, and the R from which gridding wins; medians of repeats on one thread.
+    Tones(cli::bench::TonesArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -284,6 +287,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench {
             which: BenchCommand::Stream(a),
         } => cli::bench::stream(a),
+        Command::Bench {
+            which: BenchCommand::Tones(a),
+        } => cli::bench::tones(a),
         Command::Profile { cfg } => cli::profile::run(&cfg),
         Command::Demo(a) => cli::demo::run(&a, args.quiet),
         Command::Ctl(a) => cli::ctl::run(&a, args.quiet),

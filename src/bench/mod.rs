@@ -19,6 +19,7 @@ pub mod run;
 pub mod scene_png;
 pub mod stream;
 pub mod suite;
+pub mod tones;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

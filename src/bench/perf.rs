@@ -37,7 +37,7 @@ use crate::signal::{Rng, ToneAccumulator};
 use crate::sim::scene::DEFAULT_RANGE_OFFSET_M;
 
 /// The radar profile of the workload.
-const PROFILE: &str = include_str!("../../firmware_cfg/iwr1443_mmnorm.cfg");
+pub(crate) const PROFILE: &str = include_str!("../../firmware_cfg/iwr1443_mmnorm.cfg");
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]

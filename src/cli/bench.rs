@@ -146,6 +146,51 @@ pub fn stream(a: StreamArgs) -> Result<()> {
     Ok(())
 }
 
+#[derive(clap::Args)]
+pub struct TonesArgs {
+    /// Chirps per timed run at 16 reflections or fewer (fewer above, in proportion).
+    #[arg(long, default_value_t = 2000)]
+    chirps: usize,
+    /// Timed repeats; the medians are reported.
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+    /// Print the report as one JSON object on the last line as well.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn tones(a: TonesArgs) -> Result<()> {
+    let r = mmnormd::bench::tones::run_tones_bench(a.chirps, a.repeats)?;
+    println!(
+        "chirps of {} samples, one thread, medians of {}:",
+        r.samples_per_chirp, r.repeats
+    );
+    println!("reflections  direct µs/chirp  gridded µs/chirp  direct/gridded");
+    for row in &r.rows {
+        println!(
+            "{:>11}  {:>15.2}  {:>16.2}  {:>14.2}",
+            row.reflections,
+            row.direct_ns_per_chirp / 1e3,
+            row.gridded_ns_per_chirp / 1e3,
+            row.direct_ns_per_chirp / row.gridded_ns_per_chirp
+        );
+    }
+    match r.gridding_wins_from {
+        Some(n) => println!(
+            "gridding is faster from {n} reflections on; the accumulator switches at {}",
+            r.grid_after
+        ),
+        None => println!(
+            "gridding was not faster at the largest count timed; the accumulator switches at {}",
+            r.grid_after
+        ),
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+    }
+    Ok(())
+}
+
 pub fn perf(a: PerfArgs, quiet: bool) -> Result<()> {
     let report = run_perf(a.scale, a.reference_edge, quiet)?;
     print_perf(&report);

@@ -11,7 +11,7 @@ mod tones;
 
 pub use czt::{Czt, CztAxes, PaddedDftWindows, fft_friendly};
 pub use rng::Rng;
-pub use tones::ToneAccumulator;
+pub use tones::{GRID_AFTER, ToneAccumulator};
 
 /// The periodic Hann window of length `t`, `½ − ½·cos(2πk/t)`: range sidelobes at −31 dB instead
 /// of a rectangular window's −13 dB, coherent gain ½.

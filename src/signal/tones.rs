@@ -17,10 +17,18 @@ use crate::capture::FrequencyPlan;
 
 const LANES: usize = 8;
 
-/// Reflections per chirp from which gridding is used. A direct sweep of a 512-sample chirp costs
-/// about as much per reflection as the grid's FFT and deconvolution cost per chirp divided by
-/// this (measured with `mmnormd bench tones`).
+/// Reflections per chirp from which gridding is used: `mmnormd bench tones` measures the two
+/// paths on 512-sample chirps, and gridding wins from about this many reflections on.
 pub const GRID_AFTER: usize = 24;
+
+/// `x` modulo 1, in [0, 1] (1 only by rounding, which the spreader wraps), for |x| < 2⁶³: by an
+/// integer conversion, which baseline x86-64 does in one instruction where `rem_euclid` and
+/// `fract` call the C library.
+#[inline]
+fn turns_in_cycle(x: f64) -> f64 {
+    let f = x - (x as i64) as f64;
+    if f < 0.0 { f + 1.0 } else { f }
+}
 
 /// A chirp being built, stored as separate real and imaginary parts.
 #[derive(Clone)]
@@ -30,6 +38,8 @@ pub struct ToneAccumulator {
     range_offset_m: f64,
     /// Reflections not yet swept or gridded: amplitude and d = path + offset.
     pending: Vec<(Complex32, f64)>,
+    /// Pending reflections that move to the grid.
+    grid_after: usize,
     spreader: Arc<Spreader>,
     /// The padded grid (empty until first used) and whether it holds anything.
     grid_re: Vec<f32>,
@@ -53,12 +63,23 @@ impl std::fmt::Debug for ToneAccumulator {
 
 impl ToneAccumulator {
     pub fn new(plan: &FrequencyPlan, range_offset_m: f64) -> ToneAccumulator {
+        Self::with_grid_after(plan, range_offset_m, GRID_AFTER)
+    }
+
+    /// An accumulator that grids from `grid_after` reflections per chirp on (1: always;
+    /// `usize::MAX`: never), for benchmarks and tests.
+    pub fn with_grid_after(
+        plan: &FrequencyPlan,
+        range_offset_m: f64,
+        grid_after: usize,
+    ) -> ToneAccumulator {
         let t = plan.samples_per_chirp;
         ToneAccumulator {
             start_turns_per_m: plan.start_frequency_hz / SPEED_OF_LIGHT_M_PER_S,
             step_turns_per_m: plan.frequency_step_hz / SPEED_OF_LIGHT_M_PER_S,
             range_offset_m,
-            pending: Vec::with_capacity(GRID_AFTER),
+            pending: Vec::with_capacity(grid_after.min(1024)),
+            grid_after: grid_after.max(1),
             spreader: Spreader::shared(t),
             grid_re: Vec::new(),
             grid_im: Vec::new(),
@@ -85,7 +106,7 @@ impl ToneAccumulator {
     /// (the range offset is added here).
     pub fn add(&mut self, amplitude: Complex32, path_m: f64) {
         self.pending.push((amplitude, path_m + self.range_offset_m));
-        if self.pending.len() >= GRID_AFTER {
+        if self.pending.len() >= self.grid_after {
             self.grid_pending();
         }
     }
@@ -100,8 +121,8 @@ impl ToneAccumulator {
         let centre = s.centre() as f64;
         // Each pending (a, d) becomes the tone (c, ν) in place.
         for (a, d) in &mut self.pending {
-            let nu = (self.step_turns_per_m * *d).fract();
-            let turns = ((self.start_turns_per_m * *d).fract() + centre * nu).fract();
+            let nu = turns_in_cycle(self.step_turns_per_m * *d);
+            let turns = turns_in_cycle(turns_in_cycle(self.start_turns_per_m * *d) + centre * nu);
             // The turns are reduced in f64; an f32 angle in [0, 2π) is good to 4e-7 rad.
             let (sn, cs) = (std::f32::consts::TAU * turns as f32).sin_cos();
             *a *= Complex32::new(cs, sn);
@@ -266,8 +287,8 @@ mod tests {
 
     #[test]
     fn gridded_sum_matches_direct_f64_evaluation() {
-        // Enough reflections to grid, with paths spread over several range-FFT cycles and some
-        // whose tone sits at the very ends of [0, 1) cycles per sample.
+        // Enough reflections to grid, with paths spread over several range-FFT cycles, some
+        // whose tone sits at the very ends of [0, 1) cycles per sample, and one d < 0.
         for samples in [512, 515, 256] {
             let plan = plan(samples);
             let cycle_m = SPEED_OF_LIGHT_M_PER_S / plan.frequency_step_hz;
@@ -283,6 +304,8 @@ mod tests {
                 .collect();
             reflections.push((Complex32::new(2.0, 0.0), 10.0 * cycle_m - 0.15));
             reflections.push((Complex32::new(0.0, 1.0), 10.0 * cycle_m - 0.15 - 1e-12));
+            // A path shorter than the negative range offset: d < 0.
+            reflections.push((Complex32::new(0.5, 0.5), -0.5));
             let mut acc = ToneAccumulator::new(&plan, 0.15);
             for &(a, d) in &reflections {
                 acc.add(a, d);
