@@ -123,6 +123,18 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
         .filter(|e| e.path().join("capture.json").is_file())
         .count();
     assert_eq!(cached, 4);
+
+    // A report of the finished cases into a directory that does not exist yet.
+    let elsewhere = out.path().join("reports/again");
+    let report_only = BenchOptions {
+        work_dir: Some(out.path().join("work")),
+        markdown: None,
+        report_only: true,
+        ..opts
+    };
+    let reported = run_suite(&suite, &elsewhere, &report_only).expect("report only");
+    assert_eq!(reported.results.len(), 4);
+    assert!(elsewhere.join("report.md").is_file() && elsewhere.join("results.csv").is_file());
 }
 
 #[test]

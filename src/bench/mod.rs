@@ -114,6 +114,7 @@ pub fn run_suite(
         quiet: opts.quiet,
     };
     std::fs::create_dir_all(&run_opts.runs_dir).map_err(io(&run_opts.runs_dir))?;
+    std::fs::create_dir_all(out).map_err(io(out))?;
     let outcomes = if opts.report_only {
         suite
             .cases
