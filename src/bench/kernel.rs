@@ -12,10 +12,9 @@
 //! most 32 of them per cycle, so the bound is `threads · 32 · f / 58` updates/s at clock `f`
 //! (read from `/proc/cpuinfo`; absent elsewhere).
 
-use std::time::Instant;
-
 use serde::Serialize;
 
+use super::median_seconds;
 use super::perf::{PerfError, synthesize};
 use crate::recon::ReconConfig;
 use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
@@ -141,19 +140,6 @@ pub fn run_kernel_bench(
         image: time(&image_call),
         votes: time(&votes_call),
     })
-}
-
-/// Median wall time of `repeats` calls, seconds.
-fn median_seconds(repeats: usize, call: &(dyn Fn() + Sync)) -> f64 {
-    super::median(
-        (0..repeats)
-            .map(|_| {
-                let started = Instant::now();
-                call();
-                started.elapsed().as_secs_f64()
-            })
-            .collect(),
-    )
 }
 
 /// The first `cpu MHz` of `/proc/cpuinfo`, Hz; None where there is none.

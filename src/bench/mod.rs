@@ -61,6 +61,19 @@ pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// Median wall time of `repeats` calls, seconds.
+pub(crate) fn median_seconds(repeats: usize, mut call: impl FnMut()) -> f64 {
+    median(
+        (0..repeats)
+            .map(|_| {
+                let started = Instant::now();
+                call();
+                started.elapsed().as_secs_f64()
+            })
+            .collect(),
+    )
+}
+
 /// Maps an IO error on `path` into [`BenchError::Io`].
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
     move |source| BenchError::Io {

@@ -5,8 +5,6 @@
 //! seeded amplitudes and paths between 0.2 and 1.2 m; per R, `chirps` chirps are built
 //! (clear, R additions, read) on one thread, `repeats` times, and the median reported.
 
-use std::time::Instant;
-
 use num_complex::Complex32;
 use serde::Serialize;
 
@@ -73,21 +71,17 @@ pub fn run_tones_bench(chirps: usize, repeats: usize) -> Result<TonesReport, Ton
         let time = |grid_after: usize| {
             let mut acc = ToneAccumulator::with_grid_after(&plan, 0.15, grid_after);
             let mut out = vec![Complex32::new(0.0, 0.0); t];
-            let runs: Vec<f64> = (0..repeats)
-                .map(|_| {
-                    let started = Instant::now();
-                    for _ in 0..n {
-                        acc.clear();
-                        for &(a, d) in &reflections {
-                            acc.add(a, d);
-                        }
-                        acc.add_into(&mut out);
+            let seconds = super::median_seconds(repeats, || {
+                for _ in 0..n {
+                    acc.clear();
+                    for &(a, d) in &reflections {
+                        acc.add(a, d);
                     }
-                    std::hint::black_box(&out);
-                    started.elapsed().as_secs_f64() * 1e9 / n as f64
-                })
-                .collect();
-            super::median(runs)
+                    acc.add_into(&mut out);
+                }
+                std::hint::black_box(&out);
+            });
+            seconds * 1e9 / n as f64
         };
         rows.push(TonesRow {
             reflections: r,

@@ -84,7 +84,7 @@ fn fit(f: impl Fn(f64) -> f64) -> [f64; DEGREE + 1] {
     for (d, p) in prev.iter().enumerate() {
         out[d] += cheb[0] * p;
     }
-    for (m, a) in cheb.iter().enumerate().skip(1) {
+    for a in cheb.iter().skip(1) {
         for (d, c) in cur.iter().enumerate() {
             out[d] += a * c;
         }
@@ -95,10 +95,8 @@ fn fit(f: impl Fn(f64) -> f64) -> [f64; DEGREE + 1] {
         for (n, p) in next.iter_mut().zip(&prev) {
             *n -= p;
         }
-        if m < DEGREE {
-            prev = cur;
-            cur = next;
-        }
+        prev = cur;
+        cur = next;
     }
     out
 }
