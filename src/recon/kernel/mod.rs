@@ -15,10 +15,13 @@
 //! once per group.
 //!
 //! On x86-64 with AVX2 and FMA the pass is the hand-vectorised `avx2` module, chosen at run
-//! time: eight voxels per step, the eight profile lookups done as eight 16-byte loads (a bin
-//! and its successor) and a register transpose, because AVX2 gathers lose to that on Zen.
+//! time: eight voxels per step, the geometry of every member first and then the eight profile
+//! lookups per member, done as eight 16-byte loads (a bin and its successor) and a register
+//! transpose, because AVX2 gathers lose to that on Zen. It groups the arithmetic differently
+//! (the TX leg's share of the bin and its whole turns taken once per step, FMA where the
+//! scalar code rounds twice), so the two paths agree to rounding, not bit for bit.
 //! Elsewhere, and for a tile's last `len % 8` voxels, the scalar `voxel_response` runs; it
-//! is the specification the AVX2 path is tested against.
+//! is the plain statement of the kernel.
 //!
 //! The tile's arrays stay in L1; the caller keeps the antenna loop outside the tile so that one
 //! profile row serves the whole tile. `tests::tile_kernel_matches_an_f64_reference` checks both
