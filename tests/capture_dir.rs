@@ -23,9 +23,11 @@ fn small_capture() -> Capture {
         range_offset_m: 0.15,
         tx_m: vec![[0.0, 0.0, 0.4], [0.001, 0.0, 0.4], [0.002, 1e-17, 0.4]],
         rx_m: vec![[-0.005, 0.0, 0.4], [-0.004, 0.0, 0.4], [-0.003, 0.0, 0.4]],
-        samples: (0..n * t)
-            .map(|k| Complex32::new(k as f32 * 0.1 + 1e-30, -(k as f32).sqrt()))
-            .collect(),
+        samples: std::sync::Arc::new(
+            (0..n * t)
+                .map(|k| Complex32::new(k as f32 * 0.1 + 1e-30, -(k as f32).sqrt()))
+                .collect(),
+        ),
         description: "unit test".into(),
         extra: serde_json::Map::new(),
     }
@@ -67,7 +69,7 @@ fn round_trip_is_bit_exact_including_subnormals_and_extra_keys() {
     write_capture_dir(dir.path(), &c).unwrap();
     let back = read_capture_dir(dir.path()).unwrap();
     assert_eq!(back, c);
-    for (a, b) in back.samples.iter().zip(&c.samples) {
+    for (a, b) in back.samples.iter().zip(c.samples.iter()) {
         assert_eq!(a.re.to_bits(), b.re.to_bits());
         assert_eq!(a.im.to_bits(), b.im.to_bits());
     }
@@ -160,11 +162,11 @@ fn damaged_captures_are_refused_naming_file_and_problem() {
 fn non_finite_samples_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let mut c = small_capture();
-    c.samples[5].im = f32::INFINITY;
+    std::sync::Arc::make_mut(&mut c.samples)[5].im = f32::INFINITY;
     assert!(write_capture_dir(dir.path(), &c).is_err());
     let good = small_capture();
     write_capture_dir(dir.path(), &good).unwrap();
-    let mut bad = good.samples.clone();
+    let mut bad = good.samples.to_vec();
     bad[6].re = f32::NAN;
     fs::write(dir.path().join("samples.npy"), npy::encode_c64(&bad, 3, 4)).unwrap();
     let e = read_capture_dir(dir.path()).unwrap_err().to_string();

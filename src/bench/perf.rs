@@ -540,7 +540,7 @@ pub(crate) fn synthesize(scale: f64, quiet: bool) -> Result<(Capture, [f64; 6]),
         range_offset_m: DEFAULT_RANGE_OFFSET_M,
         tx_m,
         rx_m,
-        samples,
+        samples: samples.into(),
         description: format!("bench perf workload at scale {scale}"),
         extra: Default::default(),
     };

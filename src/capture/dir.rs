@@ -144,7 +144,7 @@ pub fn read_capture_dir(dir: &Path) -> Result<Capture, CaptureDirError> {
         range_offset_m: meta.range_offset_m,
         tx_m,
         rx_m,
-        samples,
+        samples: samples.into(),
         description: meta.description,
         extra: map,
     };

@@ -13,6 +13,8 @@
 pub mod dir;
 pub mod npy;
 
+use std::sync::Arc;
+
 use num_complex::Complex32;
 
 use crate::SPEED_OF_LIGHT_M_PER_S;
@@ -91,8 +93,9 @@ pub struct Capture {
     pub tx_m: Vec<[f64; 3]>,
     /// RX position of each virtual antenna, metres.
     pub rx_m: Vec<[f64; 3]>,
-    /// N×T samples, antenna-major (C order).
-    pub samples: Vec<Complex32>,
+    /// N×T samples, antenna-major (C order). Shared: a clone of the capture (to look at it
+    /// with another range offset, say) does not copy them; `Arc::make_mut` copies on write.
+    pub samples: Arc<Vec<Complex32>>,
     pub description: String,
     /// Keys of `capture.json` that this version does not interpret, kept in order.
     pub extra: serde_json::Map<String, serde_json::Value>,
@@ -122,10 +125,12 @@ impl Capture {
             range_offset_m: self.range_offset_m,
             tx_m: indices.iter().map(|&i| self.tx_m[i]).collect(),
             rx_m: indices.iter().map(|&i| self.rx_m[i]).collect(),
-            samples: indices
-                .iter()
-                .flat_map(|&i| self.chirp(i).iter().copied())
-                .collect(),
+            samples: Arc::new(
+                indices
+                    .iter()
+                    .flat_map(|&i| self.chirp(i).iter().copied())
+                    .collect(),
+            ),
             description: self.description.clone(),
             extra: serde_json::Map::new(),
         }
@@ -142,9 +147,11 @@ impl Capture {
             range_offset_m: self.range_offset_m,
             tx_m: self.tx_m.clone(),
             rx_m: self.rx_m.clone(),
-            samples: (0..self.antennas())
-                .flat_map(|a| self.chirp(a)[first..first + len].iter().copied())
-                .collect(),
+            samples: Arc::new(
+                (0..self.antennas())
+                    .flat_map(|a| self.chirp(a)[first..first + len].iter().copied())
+                    .collect(),
+            ),
             description: self.description.clone(),
             extra: serde_json::Map::new(),
         }

@@ -614,10 +614,11 @@ pub fn build_capture(
         range_offset_m: lab.align.range_offset_m,
         tx_m: Vec::new(),
         rx_m: Vec::new(),
-        samples: Vec::new(),
+        samples: Default::default(),
         description: String::new(),
         extra: serde_json::Map::new(),
     };
+    let samples = std::sync::Arc::make_mut(&mut capture.samples);
     for (rec, aligned) in rows {
         for f in &aligned.frames {
             let Some(bytes) = rec.frames.get(f.frame as usize) else {
@@ -629,7 +630,7 @@ pub fn build_capture(
             for (k, rx_m) in f.rx_in_base_m.iter().enumerate().take(rx) {
                 capture.tx_m.push(f.tx_in_base_m);
                 capture.rx_m.push(*rx_m);
-                capture.samples.extend(
+                samples.extend(
                     words[k * t..(k + 1) * t]
                         .iter()
                         .map(|w| Complex32::new(f32::from(w.re), f32::from(w.im))),

@@ -245,7 +245,7 @@ mod tests {
             range_offset_m: 0.0,
             tx_m: tx,
             rx_m: rx,
-            samples: vec![num_complex::Complex32::new(0.0, 0.0); 4 * n],
+            samples: vec![num_complex::Complex32::new(0.0, 0.0); 4 * n].into(),
             description: String::new(),
             extra: Default::default(),
         }

@@ -300,7 +300,7 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         range_offset_m: scene.range_offset_m,
         tx_m: antennas.tx_m.clone(),
         rx_m: antennas.rx_m.clone(),
-        samples,
+        samples: samples.into(),
         description: scene.description.clone(),
         extra: serde_json::Map::new(),
     };
