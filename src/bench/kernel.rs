@@ -9,7 +9,7 @@
 //!
 //! **Peak**: the arithmetic of one update in the AVX2 kernel is [`FLOPS_PER_UPDATE`]
 //! single-precision operations (an FMA counts two). An AVX2 core with two FMA pipes does at
-//! most 32 of them per cycle, so the bound is `threads · 32 · f / 58` updates/s at clock `f`
+//! most 32 of them per cycle, so the bound is `threads · 32 · f / 60` updates/s at clock `f`
 //! (read from `/proc/cpuinfo`; absent elsewhere).
 
 use serde::Serialize;
@@ -20,10 +20,13 @@ use crate::recon::ReconConfig;
 use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::recon::normals::{Candidates, normal_field};
 
-/// Single-precision operations per update in `recon::kernel::avx2` (FMA = 2): the two
-/// distances 18 (3 sub, 3 mul, 2 add, 1 sqrt each), the round trip 2, the bin 3, the
-/// interpolation 6, the carrier's turns 1, the sine and cosine 20, the rotation 6, the sum 2.
-pub const FLOPS_PER_UPDATE: f64 = 58.0;
+/// Single-precision arithmetic per update in `recon::kernel::avx2` (FMA = 2; clamps and
+/// conversions not counted): the RX leg 9 (3 sub, 1 mul, 2 FMA, 1 sqrt); the TX leg's 15
+/// (its distance 9, the offset 1, its bin share and whole turns 5) shared by a group of four,
+/// 3.75; the bin 3; the carrier's turns 2; the sine and cosine 28 (reduction 3, the two
+/// polynomials 10 FMA and 1 mul, the double angle 3); the interpolation 6; the rotation 6;
+/// the sum 2. That is 59.75, rounded to 60.
+pub const FLOPS_PER_UPDATE: f64 = 60.0;
 
 /// Single-precision operations per cycle per core with AVX2: 2 FMA pipes × 8 lanes × 2.
 const FLOPS_PER_CYCLE: f64 = 32.0;
@@ -65,7 +68,7 @@ pub struct KernelReport {
     pub repeats: usize,
     /// The CPU clock from `/proc/cpuinfo`, Hz.
     pub clock_hz: Option<f64>,
-    /// The bound `threads · 32 · clock / 58`, updates/s.
+    /// The bound `threads · 32 · clock / 60`, updates/s.
     pub peak_updates_per_s: Option<f64>,
     pub image: KernelTiming,
     pub votes: KernelTiming,
