@@ -9,8 +9,10 @@
 //!
 //! Why two phases: fused, the hottest instructions in a profile were each member's first
 //! index loads, waiting on the store of its own bins just before, and that chain held the
-//! out-of-order window. Split, the lookups read bins stored a whole phase earlier. A `vgatherdps` per component would need four gathers instead
-//! of eight loads, and loses on Zen.
+//! out-of-order window. Split, the lookups read bins stored a whole phase earlier.
+//!
+//! A `vgatherdps` per component would need four gathers instead of eight loads, and loses on
+//! Zen.
 
 use std::arch::x86_64::*;
 
