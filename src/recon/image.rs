@@ -247,10 +247,10 @@ pub fn sin_cos_turns(turns: f32) -> (f32, f32) {
     (s * c, c * c - 1.0)
 }
 
-/// √2·sin(πu) = u·Σ_i HALF_ANGLE_SIN[i]·u²ⁱ: the Taylor series of sin to x¹¹.
+/// √2·sin(πu) = u·Σ_i `HALF_ANGLE_SIN[i]`·u²ⁱ: the Taylor series of sin to x¹¹.
 pub const HALF_ANGLE_SIN: [f32; 6] = half_angle_taylor(1);
 
-/// √2·cos(πu) = Σ_i HALF_ANGLE_COS[i]·u²ⁱ: the Taylor series of cos to x¹².
+/// √2·cos(πu) = Σ_i `HALF_ANGLE_COS[i]`·u²ⁱ: the Taylor series of cos to x¹².
 pub const HALF_ANGLE_COS: [f32; 7] = half_angle_taylor(0);
 
 /// √2·(−1)ⁱ·π^(2i+p)/(2i+p)!, the coefficient of u²ⁱ (times u when p = 1) in the Taylor
