@@ -241,7 +241,10 @@ pub fn sin_cos_turns(turns: f32) -> (f32, f32) {
     let n = t - i32::from((t as f32) > x);
     let u = turns - n as f32;
     let u2 = u * u;
-    let horner = |coefficients: &[f32]| coefficients.iter().rev().fold(0.0, |acc, &k| acc * u2 + k);
+    let horner = |coefficients: &[f32]| {
+        let (&last, rest) = coefficients.split_last().unwrap_or((&0.0, &[]));
+        rest.iter().rev().fold(last, |acc, &k| acc * u2 + k)
+    };
     let s = u * horner(&HALF_ANGLE_SIN);
     let c = horner(&HALF_ANGLE_COS);
     (s * c, c * c - 1.0)
