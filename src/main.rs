@@ -225,6 +225,10 @@ fn main() -> std::process::ExitCode {
         .with_writer(std::io::stderr)
         .with_target(false)
         .init();
+    // A bad MMNORMD_KERNEL stops the program here, named, before any work.
+    if let Err(e) = mmnormd::recon::kernel::KernelIsa::from_env() {
+        return report(Err(e.into()));
+    }
     let Some(command) = args.command else {
         return match args.config {
             Some(config) => report(cli::daemon::run(&config, args.quiet)),

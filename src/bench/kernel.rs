@@ -7,10 +7,15 @@
 //! - **image**: interpolated backprojection ([`backproject`]) over the cube;
 //! - **votes**: exact per-antenna normal votes ([`normal_field`]) on every voxel of the cube.
 //!
-//! **Peak**: the arithmetic of one update in the AVX2 kernel is [`FLOPS_PER_UPDATE`]
-//! single-precision operations (an FMA counts two). An AVX2 core with two FMA pipes does at
-//! most 32 of them per cycle, so the bound is `threads · 32 · f / 60` updates/s at clock `f`
-//! (read from `/proc/cpuinfo`; absent elsewhere).
+//! The kernel runs in [`KernelIsa::active`]: the widest instruction set the CPU has, or the
+//! one `MMNORMD_KERNEL` names, so that two runs compare them.
+//!
+//! **Peak**: the arithmetic of one update in the vector kernels is [`FLOPS_PER_UPDATE`]
+//! single-precision operations (an FMA counts two). A core with two FMA pipes as wide as the
+//! instruction set's vectors (8 lanes in AVX2, 16 in AVX-512) does at most `2 · 2 · lanes` of
+//! them per cycle, so the bound is `threads · 4 · lanes · f / 60` updates/s at clock `f` (read
+//! from `/proc/cpuinfo`; absent elsewhere). A core that splits 512-bit operations in two
+//! halves the AVX-512 bound.
 
 use serde::Serialize;
 
@@ -18,9 +23,11 @@ use super::median_seconds;
 use super::perf::{PerfError, synthesize};
 use crate::recon::ReconConfig;
 use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
+use crate::recon::kernel::KernelIsa;
 use crate::recon::normals::{Candidates, normal_field};
 
-/// Single-precision arithmetic per update in `recon::kernel::avx2` (FMA = 2; clamps and
+/// Single-precision arithmetic per update in the vector kernels, `recon::kernel::avx2` and
+/// `avx512` alike (FMA = 2; clamps and
 /// conversions not counted): the RX leg 9 (3 sub, 1 mul, 2 FMA, 1 sqrt); the TX leg's 15
 /// (its distance 9, the offset 1, its bin share and whole turns 5) shared by a group of four,
 /// 3.75; the bin 3; the carrier's turns 2; the sine and cosine 28 (reduction 3, the two
@@ -28,8 +35,10 @@ use crate::recon::normals::{Candidates, normal_field};
 /// the sum 2. That is 59.75, rounded to 60.
 pub const FLOPS_PER_UPDATE: f64 = 60.0;
 
-/// Single-precision operations per cycle per core with AVX2: 2 FMA pipes × 8 lanes × 2.
-const FLOPS_PER_CYCLE: f64 = 32.0;
+/// Single-precision operations per cycle per core for `isa`: 2 FMA pipes × lanes × 2.
+fn flops_per_cycle(isa: KernelIsa) -> f64 {
+    4.0 * isa.lanes() as f64
+}
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]
@@ -66,9 +75,13 @@ pub struct KernelReport {
     pub voxels: usize,
     pub threads: usize,
     pub repeats: usize,
+    /// The instruction set the kernel ran in.
+    pub isa: KernelIsa,
+    /// The CPU's model name, family and model from `/proc/cpuinfo`.
+    pub cpu: Option<String>,
     /// The CPU clock from `/proc/cpuinfo`, Hz.
     pub clock_hz: Option<f64>,
-    /// The bound `threads · 32 · clock / 60`, updates/s.
+    /// The bound `threads · 4 · lanes · clock / 60`, updates/s.
     pub peak_updates_per_s: Option<f64>,
     pub image: KernelTiming,
     pub votes: KernelTiming,
@@ -102,7 +115,8 @@ pub fn run_kernel_bench(
     let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let threads = rayon::current_num_threads();
     let clock_hz = cpu_clock_hz();
-    let peak = clock_hz.map(|f| threads as f64 * FLOPS_PER_CYCLE * f / FLOPS_PER_UPDATE);
+    let isa = KernelIsa::active();
+    let peak = clock_hz.map(|f| threads as f64 * flops_per_cycle(isa) * f / FLOPS_PER_UPDATE);
     let updates = (cube.len() * capture.antennas()) as f64;
     let image_call = || {
         std::hint::black_box(backproject(&capture, &cube, &profiles, None));
@@ -138,6 +152,8 @@ pub fn run_kernel_bench(
         voxels: cube.len(),
         threads,
         repeats,
+        isa,
+        cpu: cpu_description(),
         clock_hz,
         peak_updates_per_s: peak,
         image: time(&image_call),
@@ -147,10 +163,29 @@ pub fn run_kernel_bench(
 
 /// The first `cpu MHz` of `/proc/cpuinfo`, Hz; None where there is none.
 fn cpu_clock_hz() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("cpu MHz"))?;
-    let mhz: f64 = line.split(':').nth(1)?.trim().parse().ok()?;
+    let mhz: f64 = cpuinfo_field("cpu MHz")?.parse().ok()?;
     (mhz > 0.0).then_some(mhz * 1e6)
+}
+
+/// "model name (family F, model M)" from `/proc/cpuinfo`; None where there is none. Virtual
+/// machines often give a bare model name ("AMD EPYC"): the family tells the generation.
+pub(crate) fn cpu_description() -> Option<String> {
+    let name = cpuinfo_field("model name")?;
+    Some(
+        match (cpuinfo_field("cpu family"), cpuinfo_field("model")) {
+            (Some(family), Some(model)) => format!("{name} (family {family}, model {model})"),
+            _ => name,
+        },
+    )
+}
+
+/// The value of the first `/proc/cpuinfo` line whose key is `key`.
+fn cpuinfo_field(key: &str) -> Option<String> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    text.lines().find_map(|line| {
+        let (k, v) = line.split_once(':')?;
+        (k.trim() == key).then(|| v.trim().to_string())
+    })
 }
 
 #[cfg(test)]

@@ -73,11 +73,14 @@ pub struct KernelArgs {
 pub fn kernel(a: KernelArgs, quiet: bool) -> Result<()> {
     let r = run_kernel_bench(a.scale, a.edge, a.repeats, quiet)?;
     println!(
-        "{} antennas × {} voxels, {} threads, medians of {}; clock {}",
+        "{} antennas × {} voxels, {} threads, medians of {}; kernel {} ({}-lane); CPU {}, clock {}",
         r.antennas,
         r.voxels,
         r.threads,
         r.repeats,
+        r.isa,
+        r.isa.lanes(),
+        r.cpu.as_deref().unwrap_or("unknown"),
         r.clock_hz
             .map_or("unknown".to_string(), |f| format!("{:.2} GHz", f / 1e9))
     );

@@ -14,22 +14,34 @@
 //! the TX leg is computed once per voxel for the group, and the sums are loaded and stored
 //! once per group.
 //!
-//! On x86-64 with AVX2 and FMA the pass is the hand-vectorised `avx2` module, chosen at run
-//! time: eight voxels per step, the geometry of every member first and then the eight profile
-//! lookups per member, done as eight 16-byte loads (a bin and its successor) and a register
-//! transpose, because AVX2 gathers lose to that on Zen. It groups the arithmetic differently
-//! (the TX leg's share of the bin and its whole turns taken once per step, FMA where the
-//! scalar code rounds twice), so the two paths agree to rounding, not bit for bit.
-//! Elsewhere, and for a tile's last `len % 8` voxels, the scalar `voxel_response` runs; it
-//! is the plain statement of the kernel.
+//! On x86-64 the pass is hand-vectorised, in the widest instruction set the CPU has, chosen at
+//! run time ([`KernelIsa`]; the environment variable `MMNORMD_KERNEL` can ask for a narrower
+//! one):
+//! - `avx512` (AVX-512F): sixteen voxels per step, the tile's last `len % 16` in one masked
+//!   step;
+//! - `avx2` (AVX2 and FMA): eight voxels per step.
+//!
+//! Both do the geometry of every member first and then the profile lookups per member, done
+//! as one 16-byte load per voxel (a bin and its successor) and a register transpose, because
+//! gathers lose to that on Zen (AVX-512 gathers measured 0.59× on Zen 5). They group the
+//! arithmetic differently from the scalar code (the TX leg's share of the bin and its whole
+//! turns taken once per step, FMA where the scalar code rounds twice), so the paths agree to
+//! rounding, not bit for bit. Elsewhere, and for the last `len % 8` voxels of a tile in AVX2,
+//! the scalar `voxel_response` runs; it is the plain statement of the kernel.
 //!
 //! The tile's arrays stay in L1; the caller keeps the antenna loop outside the tile so that one
-//! profile row serves the whole tile. `tests::tile_kernel_matches_an_f64_reference` checks both
-//! paths, one antenna at a time and in groups, against the kernel's statement in f64, and
-//! `image::tests::fast_image_matches_brute_force_eq4` the image against Eq. 4 in f64.
+//! profile row serves the whole tile. `tests::tile_kernel_matches_an_f64_reference` checks every
+//! instruction set the CPU runs, one antenna at a time and in groups, against the kernel's
+//! statement in f64, and `image::tests::fast_image_matches_brute_force_eq4` the image against
+//! Eq. 4 in f64.
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+mod isa;
+
+pub use isa::{KERNEL_ENV, KernelIsa, KernelIsaError};
 
 use super::image::{MatchedFilter, sin_cos_turns};
 use num_complex::Complex32;
@@ -161,10 +173,15 @@ impl MatchedFilter<'_> {
         }
     }
 
-    /// The kernel for `antennas`, which share one TX position.
+    /// The kernel for `antennas`, which share one TX position, in [`KernelIsa::active`].
     fn run_kernel(&self, antennas: std::ops::Range<usize>, tile: &mut Tile, output: Output) {
+        run_group(KernelIsa::active(), &self.group(antennas), tile, output);
+    }
+
+    /// The kernel's constants for `antennas`, which share one TX position.
+    fn group(&self, antennas: std::ops::Range<usize>) -> Group<'_> {
         let bins = self.profiles.bins;
-        let g = Group {
+        Group {
             tx: self.tx[antennas.start],
             rx: &self.rx[antennas.clone()],
             rows: &self.profiles.data[antennas.start * bins..antennas.end * bins],
@@ -174,13 +191,21 @@ impl MatchedFilter<'_> {
             first: self.first,
             last: self.last,
             turns_per_m: self.turns_per_m,
-        };
-        #[cfg(target_arch = "x86_64")]
-        let done = avx2::kernel(&g, tile, output);
-        #[cfg(not(target_arch = "x86_64"))]
-        let done = 0;
-        scalar_span(&g, tile, done, output);
+        }
     }
+}
+
+/// The kernel for one group over the whole tile in `isa`: the vector kernel over what it
+/// covers, then the scalar statement over the rest. An `isa` this CPU lacks runs as scalar.
+fn run_group(isa: KernelIsa, g: &Group, tile: &mut Tile, output: Output) {
+    let done = match isa {
+        #[cfg(target_arch = "x86_64")]
+        KernelIsa::Avx512 => avx512::kernel(g, tile, output),
+        #[cfg(target_arch = "x86_64")]
+        KernelIsa::Avx2 => avx2::kernel(g, tile, output),
+        _ => 0,
+    };
+    scalar_span(g, tile, done, output);
 }
 
 /// The scalar kernel over the voxels `from..` of `tile`.
@@ -261,9 +286,10 @@ mod tests {
         (a - Complex64::new(f64::from(b.re), f64::from(b.im))).norm() <= TOLERANCE * scale
     }
 
-    /// The kernel on every antenna, one at a time and in TX groups, on a tile whose length is
-    /// not a multiple of 8 (so both the AVX2 steps and the scalar tail run where AVX2 exists),
-    /// and the scalar statement alone over the whole tile, against [`reference`].
+    /// The kernel in every instruction set this CPU runs, on every antenna, one at a time and
+    /// in TX groups, against [`reference`], on a tile of 315 voxels: 3 past a multiple of 8
+    /// (the AVX2 steps and the scalar tail both run) and 11 past one of 16 (AVX-512's masked
+    /// last step).
     #[test]
     fn tile_kernel_matches_an_f64_reference() {
         let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\nsamples_per_chirp = 256\n\
@@ -288,60 +314,48 @@ mod tests {
             .flat_map(|i| (0..dims[1]).flat_map(move |j| (0..dims[2]).map(move |k| (i, j, k))))
             .map(|(i, j, k)| grid.centre(i, j, k).map(|c| c as f32))
             .collect();
-        assert_eq!(centres.len() % 8, 3);
+        assert_eq!((centres.len() % 8, centres.len() % 16), (3, 11));
         let mut tile = Tile::default();
         tile.load(centres.iter().copied());
         let responses: Vec<Vec<Complex64>> = (0..filter.antennas())
             .map(|a| centres.iter().map(|&v| reference(&filter, a, v)).collect())
             .collect();
-        for (a, expected) in responses.iter().enumerate() {
-            filter.tile_responses(a, &mut tile);
-            for (i, &e) in expected.iter().enumerate() {
-                let got = Complex32::new(tile.re[i], tile.im[i]);
-                assert!(close(e, got, scale), "antenna {a} voxel {i}: {e} vs {got}");
-            }
-        }
-
-        // Groups: the four RX channels of each TX position.
         let groups = filter.tx_groups();
         assert_eq!(groups.len() * 4, filter.antennas());
         assert!(groups.iter().all(|g| g.len() == 4));
-        for group in &groups {
-            tile.clear_sums();
-            filter.accumulate_group(group.clone(), &mut tile);
-            filter.accumulate_group(group.clone(), &mut tile);
-            for (i, got) in tile.re.iter().zip(&tile.im).enumerate() {
-                let e: Complex64 = group.clone().map(|a| responses[a][i]).sum::<Complex64>() * 2.0;
-                let got = Complex32::new(*got.0, *got.1);
-                assert!(
-                    close(e, got, 8.0 * scale),
-                    "group {group:?} voxel {i}: {e} vs {got}"
-                );
+        for isa in KernelIsa::available() {
+            for (a, expected) in responses.iter().enumerate() {
+                run_group(isa, &filter.group(a..a + 1), &mut tile, Output::Store);
+                for (i, &e) in expected.iter().enumerate() {
+                    let got = Complex32::new(tile.re[i], tile.im[i]);
+                    assert!(
+                        close(e, got, scale),
+                        "{isa}, antenna {a} voxel {i}: {e} vs {got}"
+                    );
+                }
+            }
+            // Groups: the four RX channels of each TX position, added twice.
+            for group in &groups {
+                tile.clear_sums();
+                for _ in 0..2 {
+                    run_group(isa, &filter.group(group.clone()), &mut tile, Output::Add);
+                }
+                for (i, got) in tile.re.iter().zip(&tile.im).enumerate() {
+                    let e: Complex64 =
+                        group.clone().map(|a| responses[a][i]).sum::<Complex64>() * 2.0;
+                    let got = Complex32::new(*got.0, *got.1);
+                    assert!(
+                        close(e, got, 8.0 * scale),
+                        "{isa}, group {group:?} voxel {i}: {e} vs {got}"
+                    );
+                }
             }
         }
-
-        // The scalar statement alone, as on a CPU without AVX2.
-        for (a, expected) in responses.iter().enumerate() {
-            let bins = profiles.bins;
-            let g = Group {
-                tx: filter.tx[a],
-                rx: &filter.rx[a..a + 1],
-                rows: &profiles.data[a * bins..(a + 1) * bins],
-                bins,
-                offset_m: filter.offset_m,
-                bins_per_m: filter.bins_per_m,
-                first: filter.first,
-                last: filter.last,
-                turns_per_m: filter.turns_per_m,
-            };
-            scalar_span(&g, &mut tile, 0, Output::Store);
-            for (i, &e) in expected.iter().enumerate() {
-                let got = Complex32::new(tile.re[i], tile.im[i]);
-                assert!(
-                    close(e, got, scale),
-                    "scalar, antenna {a} voxel {i}: {e} vs {got}"
-                );
-            }
+        // The public entry points run the active instruction set.
+        let a = filter.antennas() - 1;
+        filter.tile_responses(a, &mut tile);
+        for (i, &e) in responses[a].iter().enumerate() {
+            assert!(close(e, Complex32::new(tile.re[i], tile.im[i]), scale));
         }
     }
 
