@@ -232,7 +232,8 @@ impl<'a> MatchedFilter<'a> {
 /// which lies in [−π/2, π/2], scaled by √2 ([`HALF_ANGLE_SIN`], [`HALF_ANGLE_COS`]); then the
 /// double-angle formulas sin 2a = 2 sin a cos a and cos 2a = 2 cos² a − 1, which the √2 makes
 /// one product each. Errors are below 4e-7. There are no branches, so loops around it
-/// vectorise, and `recon::kernel`'s AVX2 path computes the same polynomials eight at a time.
+/// vectorise, and `recon::kernel`'s AVX2 and AVX-512 paths compute the same polynomials eight
+/// or sixteen at a time.
 #[inline(always)]
 pub fn sin_cos_turns(turns: f32) -> (f32, f32) {
     // Round to the nearest turn without `f32::round` (a libm call on baseline x86-64).
