@@ -13,9 +13,9 @@
 //! **Peak**: the arithmetic of one update in the vector kernels is [`FLOPS_PER_UPDATE`]
 //! single-precision operations (an FMA counts two). A core with two FMA pipes as wide as the
 //! instruction set's vectors (8 lanes in AVX2, 16 in AVX-512) does at most `2 · 2 · lanes` of
-//! them per cycle, so the bound is `threads · 4 · lanes · f / 60` updates/s at clock `f` (read
-//! from `/proc/cpuinfo`; absent elsewhere). A core that splits 512-bit operations in two
-//! halves the AVX-512 bound.
+//! them per cycle, so the bound is `threads · 4 · lanes · f / 60.75` updates/s at clock `f`
+//! (read from `/proc/cpuinfo`; absent elsewhere). A core that splits 512-bit operations in
+//! two halves the AVX-512 bound.
 
 use serde::Serialize;
 
@@ -26,14 +26,18 @@ use crate::recon::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::recon::kernel::KernelIsa;
 use crate::recon::normals::{Candidates, normal_field};
 
-/// Single-precision arithmetic per update in the vector kernels, `recon::kernel::avx2` and
-/// `avx512` alike (FMA = 2; clamps and
-/// conversions not counted): the RX leg 9 (3 sub, 1 mul, 2 FMA, 1 sqrt); the TX leg's 15
-/// (its distance 9, the offset 1, its bin share and whole turns 5) shared by a group of four,
-/// 3.75; the bin 3; the carrier's turns 2; the sine and cosine 28 (reduction 3, the two
-/// polynomials 10 FMA and 1 mul, the double angle 3); the interpolation 6; the rotation 6;
-/// the sum 2. That is 59.75, rounded to 60.
-pub const FLOPS_PER_UPDATE: f64 = 60.0;
+/// Single-precision arithmetic per update in the vector kernel (`recon::kernel::vector`, the
+/// same in AVX2 and AVX-512; FMA = 2; clamps and conversions not counted):
+/// - the RX leg 9 (3 sub, 1 mul, 2 FMA, 1 sqrt);
+/// - the TX leg's 15 (its distance 9, the offset 1, its bin share and whole turns 5), shared
+///   by a group of four: 3.75;
+/// - the bin 3 and the carrier's turns 2;
+/// - the sine and cosine 29: the reduction 3, the two polynomials 23 (5 FMA for the sine's 6
+///   coefficients, 6 for the cosine's 7, and the sine's factor u), the double angle 3;
+/// - the interpolation 6, the rotation 6 and the sum 2.
+///
+/// That is 60.75. (An earlier count gave 60: it put the two polynomials at 10 FMA.)
+pub const FLOPS_PER_UPDATE: f64 = 60.75;
 
 /// Single-precision operations per cycle per core for `isa`: 2 FMA pipes × lanes × 2.
 fn flops_per_cycle(isa: KernelIsa) -> f64 {
@@ -81,7 +85,7 @@ pub struct KernelReport {
     pub cpu: Option<String>,
     /// The CPU clock from `/proc/cpuinfo`, Hz.
     pub clock_hz: Option<f64>,
-    /// The bound `threads · 4 · lanes · clock / 60`, updates/s.
+    /// The bound `threads · 4 · lanes · clock / FLOPS_PER_UPDATE`, updates/s.
     pub peak_updates_per_s: Option<f64>,
     pub image: KernelTiming,
     pub votes: KernelTiming,

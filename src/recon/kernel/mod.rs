@@ -16,18 +16,20 @@
 //!
 //! On x86-64 the pass is hand-vectorised, in the widest instruction set the CPU has, chosen at
 //! run time ([`KernelIsa`]; the environment variable `MMNORMD_KERNEL` can ask for a narrower
-//! one):
+//! one). The kernel is written once, in `vector`, over the operations of the `simd::Simd`
+//! trait, and compiled inside one `#[target_feature]` function per instruction set:
 //! - `avx512` (AVX-512F): sixteen voxels per step, the tile's last `len % 16` in one masked
 //!   step;
 //! - `avx2` (AVX2 and FMA): eight voxels per step.
 //!
-//! Both do the geometry of every member first and then the profile lookups per member, done
-//! as one 16-byte load per voxel (a bin and its successor) and a register transpose, because
-//! gathers lose to that on Zen (AVX-512 gathers measured 0.59× on Zen 5). They group the
-//! arithmetic differently from the scalar code (the TX leg's share of the bin and its whole
-//! turns taken once per step, FMA where the scalar code rounds twice), so the paths agree to
-//! rounding, not bit for bit. Elsewhere, and for the last `len % 8` voxels of a tile in AVX2,
-//! the scalar `voxel_response` runs; it is the plain statement of the kernel.
+//! Each step does the geometry of every member first and then the profile lookups per
+//! member, done as one 16-byte load per voxel (a bin and its successor) and a register
+//! transpose, because gathers lose to that on Zen (AVX-512 gathers measured 0.59× on Zen 5).
+//! The vector kernel groups the arithmetic differently from the scalar code (the TX leg's
+//! share of the bin and its whole turns taken once per step, FMA where the scalar code rounds
+//! twice), so the paths agree to rounding, not bit for bit. Elsewhere, and for the last
+//! `len % 8` voxels of a tile in AVX2, the scalar `voxel_response` runs; it is the plain
+//! statement of the kernel.
 //!
 //! The tile's arrays stay in L1; the caller keeps the antenna loop outside the tile so that one
 //! profile row serves the whole tile. `tests::tile_kernel_matches_an_f64_reference` checks every
@@ -40,6 +42,10 @@ mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 mod isa;
+#[cfg(target_arch = "x86_64")]
+mod simd;
+#[cfg(target_arch = "x86_64")]
+mod vector;
 
 pub use isa::{KERNEL_ENV, KernelIsa, KernelIsaError};
 
