@@ -167,25 +167,25 @@ pub fn run_kernel_bench(
 
 /// The first `cpu MHz` of `/proc/cpuinfo`, Hz; None where there is none.
 fn cpu_clock_hz() -> Option<f64> {
-    let mhz: f64 = cpuinfo_field("cpu MHz")?.parse().ok()?;
+    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let mhz: f64 = cpuinfo_field(&cpuinfo, "cpu MHz")?.parse().ok()?;
     (mhz > 0.0).then_some(mhz * 1e6)
 }
 
 /// "model name (family F, model M)" from `/proc/cpuinfo`; None where there is none. Virtual
 /// machines often give a bare model name ("AMD EPYC"): the family tells the generation.
 pub(crate) fn cpu_description() -> Option<String> {
-    let name = cpuinfo_field("model name")?;
-    Some(
-        match (cpuinfo_field("cpu family"), cpuinfo_field("model")) {
-            (Some(family), Some(model)) => format!("{name} (family {family}, model {model})"),
-            _ => name,
-        },
-    )
+    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let field = |key| cpuinfo_field(&cpuinfo, key);
+    let name = field("model name")?;
+    Some(match (field("cpu family"), field("model")) {
+        (Some(family), Some(model)) => format!("{name} (family {family}, model {model})"),
+        _ => name,
+    })
 }
 
-/// The value of the first `/proc/cpuinfo` line whose key is `key`.
-fn cpuinfo_field(key: &str) -> Option<String> {
-    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+/// The value of the first line of `/proc/cpuinfo`'s `text` whose key is `key`.
+fn cpuinfo_field(text: &str, key: &str) -> Option<String> {
     text.lines().find_map(|line| {
         let (k, v) = line.split_once(':')?;
         (k.trim() == key).then(|| v.trim().to_string())

@@ -106,10 +106,6 @@ impl Simd for Avx2 {
             (bins, _mm256_sub_ps(pos, _mm256_cvtepi32_ps(k)))
         }
     }
-    #[inline(always)]
-    fn zero_bins(self) -> [i32; 8] {
-        [0; 8]
-    }
 
     #[inline(always)]
     fn covered(len: usize) -> usize {

@@ -115,10 +115,6 @@ impl Simd for Avx512 {
             (bins, _mm512_sub_ps(pos, _mm512_cvtepi32_ps(k)))
         }
     }
-    #[inline(always)]
-    fn zero_bins(self) -> [i32; 16] {
-        [0; 16]
-    }
 
     #[inline(always)]
     fn covered(len: usize) -> usize {

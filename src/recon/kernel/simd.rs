@@ -15,7 +15,7 @@ pub(super) trait Simd: Copy {
     /// `LANES` i32 values.
     type I: Copy;
     /// `LANES` i32 values in memory, where the lookups read them one at a time.
-    type Bins: Copy;
+    type Bins: Copy + Default;
 
     fn splat(self, v: f32) -> Self::F;
     fn splat_i(self, v: i32) -> Self::I;
@@ -36,8 +36,6 @@ pub(super) trait Simd: Copy {
     /// `pos` truncated to i32 and clamped to [0, `max_bin`] by integer operations, as the
     /// bins in memory, and `pos` less that bin.
     fn bins(self, pos: Self::F, max_bin: Self::I) -> (Self::Bins, Self::F);
-    /// Zeroed bins.
-    fn zero_bins(self) -> Self::Bins;
 
     /// How many of `len` voxels the steps cover: every one where the last step can be
     /// masked, otherwise the whole steps.

@@ -131,7 +131,7 @@ impl<S: Simd> Geometry<S> {
     fn zero(s: S) -> Self {
         let zero = s.splat(0.0);
         Self {
-            bins: s.zero_bins(),
+            bins: S::Bins::default(),
             frac: zero,
             sin: zero,
             cos: zero,
