@@ -751,6 +751,40 @@ mod tests {
     use crate::sim::{Scene, simulate};
     use std::sync::Arc;
 
+    /// `imaging = "auto"` takes range migration for a raster and says why, and backprojection
+    /// once one antenna sits off the lattice by more than `raster_tolerance`; `"rma"` then
+    /// refuses the capture instead of falling back.
+    #[test]
+    fn auto_imaging_takes_range_migration_only_for_a_raster() {
+        let text = "[radar]\nstart_frequency_hz = 77e9\nfrequency_step_hz = 7.8125e6\nsamples_per_chirp = 128\n\
+            [aperture]\nwidth_m = 0.024\nheight_m = 0.024\nspacing_m = 0.003\nz_m = 0.3\n\
+            [[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = 1.0\n";
+        let scene = Scene::parse(text, std::path::Path::new("inline.toml")).unwrap();
+        let raster = simulate(&scene, true).capture;
+        let config = |imaging| ReconConfig {
+            imaging,
+            volume: VolumeSpec::Box([-0.004, 0.004, -0.004, 0.004, -0.004, 0.004]),
+            voxel_m: 0.002,
+            ..ReconConfig::default()
+        };
+        let used = |capture: &Capture, imaging| {
+            image_volume(capture, &config(imaging), true).map(|i| i.imaging)
+        };
+        let on_raster = used(&raster, Imaging::Auto).unwrap();
+        assert_eq!(on_raster.used, Imaging::Rma);
+        assert!(on_raster.reason.contains("raster"), "{}", on_raster.reason);
+        assert!(on_raster.rma.is_some());
+
+        // One antenna 1 mm off its node: a third of the spacing, past the 0.1 tolerance.
+        let mut moved = raster.clone();
+        moved.tx_m[5][0] += 0.001;
+        moved.rx_m[5][0] += 0.001;
+        let off_raster = used(&moved, Imaging::Auto).unwrap();
+        assert_eq!(off_raster.used, Imaging::Backprojection);
+        assert!(!off_raster.reason.is_empty() && off_raster.rma.is_none());
+        assert!(used(&moved, Imaging::Rma).is_err());
+    }
+
     /// A point target under a 4 mm sheet of index 1.6, imaged from 30 cm with a narrow
     /// aperture (incidence below 4°): each leg is (n − 1)·t = 2.4 mm longer, so the image
     /// peak sits 2.4 mm deeper than without the sheet, and with the sheet known it returns to
