@@ -160,6 +160,10 @@ pub struct Optimisation {
     pub near_echo_tones: usize,
     /// A near echo is removed while its peak is at least this fraction of the window's peak.
     pub near_echo_ratio: f64,
+    /// Specular window of the simulated chirps: a hit whose surface normal lies within the first
+    /// angle (degrees) of the bistatic bisector counts fully, falling as a raised cosine to
+    /// nothing at the second; `[0, 0]` counts every hit alike (the paper's Eq. 11).
+    pub specular_window_deg: [f64; 2],
 }
 
 impl Default for Optimisation {
@@ -175,6 +179,7 @@ impl Default for Optimisation {
             max_sweeps: 8,
             near_echo_tones: 4,
             near_echo_ratio: 0.3,
+            specular_window_deg: [10.0, 20.0],
         }
     }
 }
@@ -412,6 +417,19 @@ impl ReconConfig {
             o.near_echo_tones <= 64,
             "must lie in 0..=64",
         )?;
+        let [full, cut] = o.specular_window_deg;
+        check(
+            "optimisation.specular_window_deg[1]",
+            cut,
+            (0.0..=90.0).contains(&cut),
+            "(the cutoff) must lie in [0, 90] degrees",
+        )?;
+        check(
+            "optimisation.specular_window_deg[0]",
+            full,
+            full >= 0.0 && full <= cut,
+            "(full weight up to) must lie in [0, cutoff] degrees",
+        )?;
         check(
             "optimisation.near_echo_ratio",
             o.near_echo_ratio,
@@ -556,6 +574,9 @@ mod tests {
         assert!(e.contains("antenas"), "{e}");
         let e = ReconConfig::parse("volume = [0.1, 0.0, 0, 1, 0, 1]\n").unwrap_err();
         assert!(e.contains("volume"), "{e}");
+        let e =
+            ReconConfig::parse("[optimisation]\nspecular_window_deg = [25.0, 20.0]\n").unwrap_err();
+        assert!(e.contains("specular_window_deg[0] = 25"), "{e}");
         let e = ReconConfig::parse("volume = \"big\"\n").unwrap_err();
         assert!(e.contains("big"), "{e}");
         assert!(
