@@ -54,6 +54,8 @@
 //!   of the candidate counts; tests check that it finds the product search's optimum. The authors'
 //!   "highest acceptable peak" rule is not used: the paper selects the minimum.
 
+use std::f32::consts::PI;
+
 use num_complex::Complex32;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -64,6 +66,7 @@ use super::near_echo::NearEchoCanceller;
 use super::trace::{RaySamples, SampledField};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
+use crate::geometry::vec3::{add, dot, scale, sub};
 use crate::progress::Progress;
 use crate::signal::{PaddedDftWindows, Rng, ToneAccumulator};
 
@@ -357,8 +360,7 @@ pub fn simulate_candidates(
                             level as f32,
                             &capture.tx_m[a],
                             &capture.rx_m[a],
-                            &fields[n],
-                            opts.specular_window_deg,
+                            SpecularWindow::new(opts.specular_window_deg, &fields[n]).as_ref(),
                         );
                         let mut chirp = vec![Complex32::new(0.0, 0.0); t];
                         tones.add_into(&mut chirp);
@@ -588,18 +590,55 @@ fn march_rays(
     na * nb
 }
 
+/// The specular window of the simulated hits: weight 1 while the angle between the field's
+/// gradient and the bistatic bisector is at most `full_rad`, a raised cosine to 0 at `cut_rad`.
+struct SpecularWindow<'a> {
+    field: &'a SampledField,
+    full_rad: f32,
+    cut_rad: f32,
+}
+
+impl<'a> SpecularWindow<'a> {
+    /// The window `[full, cutoff]` (degrees) over `field`; None for a zero cutoff (Eq. 11).
+    fn new(window_deg: [f64; 2], field: &'a SampledField) -> Option<SpecularWindow<'a>> {
+        (window_deg[1] > 0.0).then(|| SpecularWindow {
+            field,
+            full_rad: window_deg[0].to_radians() as f32,
+            cut_rad: window_deg[1].to_radians() as f32,
+        })
+    }
+
+    /// The weight of a hit at `hit` on `level` seen along the unit vectors `to_tx` and `to_rx`;
+    /// 0 where the gradient is undefined.
+    fn weight(&self, hit: [f32; 3], level: f32, to_tx: [f32; 3], to_rx: [f32; 3]) -> f32 {
+        let Some(n) = gradient(self.field, hit, level) else {
+            return 0.0;
+        };
+        let b = add(to_tx, to_rx);
+        let norms = (dot(b, b) * dot(n, n)).sqrt();
+        if norms <= 0.0 {
+            return 0.0;
+        }
+        let angle = (dot(b, n) / norms).clamp(-1.0, 1.0).acos();
+        if angle <= self.full_rad {
+            1.0
+        } else if angle >= self.cut_rad {
+            0.0
+        } else {
+            0.5 * (1.0 + (PI * (angle - self.full_rad) / (self.cut_rad - self.full_rad)).cos())
+        }
+    }
+}
+
 /// Adds each ray's first crossing of `level` to `tones` with amplitude 1/d (Eq. 11), d the
-/// round trip TX → hit → RX, times the specular window on the angle between the field's
-/// gradient at the hit and the bistatic bisector.
-#[allow(clippy::too_many_arguments)]
+/// round trip TX → hit → RX, times the specular window's weight where there is one.
 fn add_hits(
     tones: &mut ToneAccumulator,
     rays: &[RaySamples],
     level: f32,
     tx: &[f64; 3],
     rx: &[f64; 3],
-    field: &SampledField,
-    window_deg: [f64; 2],
+    window: Option<&SpecularWindow<'_>>,
 ) {
     let dist = |p: [f32; 3], q: &[f64; 3]| {
         (0..3)
@@ -607,47 +646,28 @@ fn add_hits(
             .sum::<f64>()
             .sqrt()
     };
-    let (full, cut) = (window_deg[0].to_radians(), window_deg[1].to_radians());
+    let unit =
+        |p: [f32; 3], q: &[f64; 3], d: f64| scale(sub(q.map(|c| c as f32), p), (1.0 / d) as f32);
     for ray in rays {
         if let Some(hit) = ray.first_crossing(level) {
             let (dt, dr) = (dist(hit, tx), dist(hit, rx));
-            let d = dt + dr;
-            let mut w = 1.0;
-            if cut > 0.0 {
-                let Some(n) = gradient(field, hit, level) else {
-                    continue;
-                };
-                let b: [f64; 3] = std::array::from_fn(|k| {
-                    (tx[k] - f64::from(hit[k])) / dt + (rx[k] - f64::from(hit[k])) / dr
-                });
-                let bn = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-                let nn = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                if bn <= 0.0 || nn <= 0.0 {
-                    continue;
-                }
-                let cos = ((b[0] * n[0] + b[1] * n[1] + b[2] * n[2]) / (bn * nn)).clamp(-1.0, 1.0);
-                let angle = cos.acos();
-                w = if angle <= full {
-                    1.0
-                } else if angle >= cut {
-                    0.0
-                } else {
-                    0.5 * (1.0 + (std::f64::consts::PI * (angle - full) / (cut - full)).cos())
-                };
-                if w == 0.0 {
-                    continue;
-                }
+            let w = match window {
+                Some(window) => window.weight(hit, level, unit(hit, tx, dt), unit(hit, rx, dr)),
+                None => 1.0,
+            };
+            if w > 0.0 {
+                let d = dt + dr;
+                tones.add(Complex32::new(w / d as f32, 0.0), d);
             }
-            tones.add(Complex32::new((w / d) as f32, 0.0), d);
         }
     }
 }
 
 /// The field's gradient at `p` (on the level `level`) by central differences half a voxel
 /// apart, one-sided against `level` where a side is undefined.
-fn gradient(field: &SampledField, p: [f32; 3], level: f32) -> Option<[f64; 3]> {
+fn gradient(field: &SampledField, p: [f32; 3], level: f32) -> Option<[f32; 3]> {
     let h = 0.5 * field.grid.voxel_m as f32;
-    let mut g = [0.0f64; 3];
+    let mut g = [0.0f32; 3];
     for (a, out) in g.iter_mut().enumerate() {
         let at = |s: f32| {
             let mut q = p;
@@ -655,9 +675,9 @@ fn gradient(field: &SampledField, p: [f32; 3], level: f32) -> Option<[f64; 3]> {
             field.sample(q)
         };
         *out = match (at(h), at(-h)) {
-            (Some(u), Some(v)) => f64::from(u - v) / f64::from(2.0 * h),
-            (Some(u), None) => f64::from(u - level) / f64::from(h),
-            (None, Some(v)) => f64::from(level - v) / f64::from(h),
+            (Some(u), Some(v)) => (u - v) / (2.0 * h),
+            (Some(u), None) => (u - level) / h,
+            (None, Some(v)) => (level - v) / h,
             (None, None) => return None,
         };
     }
