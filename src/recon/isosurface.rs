@@ -350,6 +350,7 @@ pub fn simulate_candidates(
             |(tones, rays, buffers), &(n, j)| {
                 let a = chosen[j];
                 let count = march_rays(&fields[n], centres[a], opts.ray_step_deg, rays);
+                let window = SpecularWindow::new(opts.specular_window_deg, &fields[n]);
                 let out = candidates[n]
                     .iter()
                     .map(|&level| {
@@ -360,7 +361,7 @@ pub fn simulate_candidates(
                             level as f32,
                             &capture.tx_m[a],
                             &capture.rx_m[a],
-                            SpecularWindow::new(opts.specular_window_deg, &fields[n]).as_ref(),
+                            window.as_ref(),
                         );
                         let mut chirp = vec![Complex32::new(0.0, 0.0); t];
                         tones.add_into(&mut chirp);
