@@ -155,10 +155,10 @@ pub struct Optimisation {
     pub cost_pad_factor: usize,
     /// Coordinate-descent sweeps over components at most.
     pub max_sweeps: usize,
-    /// Echoes peaking nearer than the objects' range window removed from each measured chirp
-    /// before the cost, at most (0: none; `recon::near_echo`).
+    /// Echoes peaking nearer than the objects' range window projected out of each antenna's
+    /// spectra before the cost, at most (0: none; `recon::near_echo`).
     pub near_echo_tones: usize,
-    /// A near echo is removed while its peak is at least this fraction of the window's peak.
+    /// A near echo is taken while its peak is at least this fraction of the window's peak.
     pub near_echo_ratio: f64,
     /// Specular window of the simulated chirps: a hit whose surface normal lies within the first
     /// angle (degrees) of the bistatic bisector counts fully, falling as a raised cosine to

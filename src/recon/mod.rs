@@ -10,7 +10,7 @@
 //! - [`components`]: 6-connected components;
 //! - [`rsdf`]: one relative signed distance function per component (Eq. 8);
 //! - [`trace`] and [`isosurface`]: the structural isosurface optimisation (Eq. 11–13) and the
-//!   ablations, with [`near_echo`] removing the echoes nearer than the objects from its cost;
+//!   ablations, with [`near_echo`] keeping the echoes nearer than the objects out of its cost;
 //! - [`baselines`]: backprojection and interferometric points;
 //! - [`pipeline`]: the stages run in order, with timings, for `mmnormd reconstruct`.
 
