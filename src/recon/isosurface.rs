@@ -50,11 +50,12 @@
 //!   evaluated from bin 0 for that. Neither the paper nor the authors do this. The
 //!   strong-return filter sees the windows with the echoes subtracted.
 //! - **Selection (Eq. 13)**: the minimum cost. Components interact only through the sum of their
-//!   simulated chirps, so the joint minimum is sought by coordinate descent ([`coordinate_descent`]):
-//!   each component starts at its best alone, then sweeps take each component's best given the
-//!   others until nothing changes. Its cost is a few sweeps × Σ candidates instead of the product
-//!   of the candidate counts; tests check that it finds the product search's optimum. The authors'
-//!   "highest acceptable peak" rule is not used: the paper selects the minimum.
+//!   simulated chirps, so the joint minimum is sought by coordinate descent
+//!   ([`coordinate_descent`]): each component starts at its best alone, then sweeps take each
+//!   component's best given the others until nothing changes. Its cost is a few sweeps ×
+//!   Σ candidates instead of the product of the candidate counts; tests check that it finds the
+//!   product search's optimum. The authors' "highest acceptable peak" rule is not used: the
+//!   paper selects the minimum.
 
 use std::f32::consts::PI;
 

@@ -17,10 +17,11 @@
 //! golden-section search on the DTFT magnitude; its model is that tone times a quadratic in
 //! time, fitted by least squares to the spectrum before the window only, so that the objects
 //! pull on the fit through their sidelobes alone (a fit to the whole chirp absorbs a fifth of
-//! an object 2.4 bins behind the sheet). The quadratic holds what a single tone cannot: a reflection coefficient that changes over the band, as a
-//! slab's Fabry–Pérot Γ(f) does, and the delay spread of echoes closer than a range bin, such
-//! as a sheet's two faces 2·n·t apart (1.3 cm of round trip for 4 mm at n = 1.6: an eighth of a
-//! bin). A single tone leaves a third of such a pair.
+//! an object 2.4 bins behind the sheet). The quadratic holds what a single tone cannot: a
+//! reflection coefficient that changes over the band, as a slab's Fabry–Pérot Γ(f) does, and
+//! the delay spread of echoes closer than a range bin, such as a sheet's two faces 2·n·t apart
+//! (1.3 cm of round trip for 4 mm at n = 1.6: an eighth of a bin). A single tone leaves a third
+//! of such a pair.
 //!
 //! Measured on the accuracy suite's banana-on-its-side capture through cardboard against the
 //! same scene without it (300 antennas, the L1 distance of L2-normalised window magnitudes that
