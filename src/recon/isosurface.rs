@@ -253,9 +253,10 @@ impl Window {
     fn new(first: i64, len: usize, chirp: &[Complex32], canceller: &NearEchoCanceller) -> Window {
         let echoes = canceller.near_echoes(chirp, first, len);
         let near_echoes = NearEchoSubspace::new(&echoes, first);
-        let window = near_echoes
-            .as_ref()
-            .map_or(echoes.cleaned.as_slice(), NearEchoSubspace::measured);
+        let window = match &near_echoes {
+            Some(subspace) => subspace.project(&echoes.measured),
+            None => echoes.cleaned,
+        };
         let magnitudes: Vec<f32> = window.iter().map(|z| z.norm()).collect();
         Window {
             first,

@@ -77,8 +77,6 @@ pub struct NearEchoSubspace {
     first: usize,
     /// Orthonormal basis of the echoes' span over bins `0..span`, in f64.
     basis: Vec<Vec<Complex64>>,
-    /// The projected measured window.
-    measured: Vec<Complex32>,
 }
 
 fn wide(z: Complex32) -> Complex64 {
@@ -118,13 +116,10 @@ impl NearEchoSubspace {
                 basis.push(v);
             }
         }
-        let mut subspace = NearEchoSubspace {
+        Some(NearEchoSubspace {
             first: (first as usize).min(echoes.measured.len()),
             basis,
-            measured: Vec::new(),
-        };
-        subspace.measured = subspace.project(&echoes.measured);
-        Some(subspace)
+        })
     }
 
     /// Bins a simulated spectrum must cover: `0..span()`.
@@ -135,11 +130,6 @@ impl NearEchoSubspace {
     /// The window's first bin.
     pub fn first(&self) -> usize {
         self.first
-    }
-
-    /// The measured window, projected.
-    pub fn measured(&self) -> &[Complex32] {
-        &self.measured
     }
 
     /// The window bins of `spectrum` (bins `0..span()`) with its part in the echoes' span
@@ -483,7 +473,7 @@ mod tests {
             .collect();
         let subspace = NearEchoSubspace::new(&echoes, first).expect("one echo");
         assert_eq!(subspace.span(), span);
-        let measured_window = normalised(subspace.measured());
+        let measured_window = normalised(&subspace.project(&echoes.measured));
         let projected_costs: Vec<f32> = models
             .iter()
             .map(|m| l1(&normalised(&subspace.project(&m[..span])), &measured_window))
@@ -510,7 +500,7 @@ mod tests {
         let expected = subspace.project(&canceller.spectrum(&object)[..subspace.span()]);
         let peak = expected.iter().map(|z| z.norm()).fold(0.0f32, f32::max);
         let error = subspace
-            .measured()
+            .project(&echoes.measured)
             .iter()
             .zip(&expected)
             .map(|(a, b)| (a - b).norm())
