@@ -377,6 +377,39 @@ impl Suite {
             cases,
         })
     }
+
+    /// Keeps only the cases `patterns` select, in suite order. A pattern that is a case's id
+    /// selects that case alone (`box-flat-los`, not `cracker_box-flat-los` too); any other
+    /// pattern selects every case whose id contains it (`nlos`). The selection is the union.
+    /// Refuses a pattern that selects nothing, naming it, and leaves the suite unchanged then.
+    pub fn select(&mut self, patterns: &[String]) -> Result<(), SuiteError> {
+        let mut keep = vec![false; self.cases.len()];
+        for pattern in patterns {
+            let exact = self.cases.iter().position(|c| c.id == *pattern);
+            let mut hits = 0;
+            for (k, case) in keep.iter_mut().zip(&self.cases) {
+                let hit = match exact {
+                    Some(_) => case.id == *pattern,
+                    None => case.id.contains(pattern.as_str()),
+                };
+                if hit {
+                    *k = true;
+                    hits += 1;
+                }
+            }
+            if hits == 0 {
+                return Err(SuiteError::Field {
+                    path: self.path.clone(),
+                    field: "--only".into(),
+                    value: format!("{pattern:?}"),
+                    reason: "no case id is or contains it".into(),
+                });
+            }
+        }
+        let mut flags = keep.into_iter();
+        self.cases.retain(|_| flags.next().unwrap_or(false));
+        Ok(())
+    }
 }
 
 /// The rotation of a pose.
@@ -827,6 +860,41 @@ offset_m = [-0.05, 0.0, 0.0]
             "{}",
             angle.to_degrees()
         );
+    }
+
+    #[test]
+    fn an_exact_id_selects_one_case_and_other_text_selects_every_case_containing_it() {
+        let scene = |name: &str| {
+            format!(
+                "[[scene]]\nname = \"{name}\"\nposes = [\"flat\", \"side\"]\n[[scene.object]]\nshape = \"sphere\"\nradius_m = 0.02\n"
+            )
+        };
+        let text = suite_text(&format!("{}{}", scene("box"), scene("sugar_box")));
+        let suite = Suite::parse(&text, &path()).expect("suite");
+        let ids = |patterns: &[&str]| -> Result<Vec<String>, SuiteError> {
+            let mut s = suite.clone();
+            let patterns: Vec<String> = patterns.iter().map(|p| p.to_string()).collect();
+            s.select(&patterns)?;
+            Ok(s.cases.into_iter().map(|c| c.id).collect())
+        };
+        assert_eq!(ids(&["box-flat-los"]).expect("exact"), ["box-flat-los"]);
+        assert_eq!(
+            ids(&["box-flat"]).expect("substring"),
+            [
+                "box-flat-los",
+                "box-flat-nlos",
+                "sugar_box-flat-los",
+                "sugar_box-flat-nlos"
+            ]
+        );
+        assert_eq!(
+            ids(&["sugar_box-side-nlos", "box-flat-los"]).expect("union, in suite order"),
+            ["box-flat-los", "sugar_box-side-nlos"]
+        );
+        let e = ids(&["nlos", "cube"])
+            .expect_err("cube selects nothing")
+            .to_string();
+        assert!(e.contains("--only") && e.contains("\"cube\""), "{e}");
     }
 
     #[test]

@@ -23,9 +23,11 @@ pub struct AccuracyArgs {
     /// Also write the report here (e.g. BENCHMARKS.md), linking into OUT.
     #[arg(long)]
     markdown: Option<PathBuf>,
-    /// Run only the cases whose id contains this text.
-    #[arg(long)]
-    only: Option<String>,
+    /// Run only these cases: a case id (e.g. `box-flat-los`) selects that case alone; text that
+    /// is no case id selects every case whose id contains it (e.g. `nlos`). Comma-separated or
+    /// repeated; the selection is the union.
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
     /// Run nothing; write the report from the cases already finished.
     #[arg(long)]
     report_only: bool,
@@ -270,14 +272,8 @@ fn available_memory_bytes() -> Option<u64> {
 
 pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
     let mut suite = Suite::load(&a.suite)?;
-    if let Some(only) = &a.only {
-        suite.cases.retain(|c| c.id.contains(only.as_str()));
-        if suite.cases.is_empty() {
-            bail!(
-                "--only {only:?}: no case id of {} contains it",
-                a.suite.display()
-            );
-        }
+    if !a.only.is_empty() {
+        suite.select(&a.only)?;
     }
     if let Some(n) = &a.notes
         && !n.is_file()
