@@ -248,11 +248,7 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
     let started = std::time::Instant::now();
     let plan = scene.plan;
     let lambda0_m = plan.first_wavelength_m();
-    let rx_channels: Vec<u8> = scene
-        .profile
-        .as_ref()
-        .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone());
-    let antennas = raster_antennas(&scene.aperture, &rx_channels, lambda0_m);
+    let antennas = raster_antennas(&scene.aperture, &scene.rx_channels(), lambda0_m);
     let model = ForwardModel::new(scene, &view_region(&antennas));
     let t = plan.samples_per_chirp;
     let n = antennas.tx_m.len();

@@ -369,6 +369,23 @@ impl Checker<'_> {
 }
 
 impl Scene {
+    /// The RX channels a scan records: the profile's, or all four without one.
+    pub fn rx_channels(&self) -> Vec<u8> {
+        self.profile
+            .as_ref()
+            .map_or_else(|| vec![0, 1, 2, 3], |p| p.rx_channels.clone())
+    }
+
+    /// Channels of the simulated scan: raster positions times the channels per position.
+    pub fn channels(&self) -> usize {
+        let (columns, rows) = self.aperture.raster_size();
+        let per_position = match self.aperture.layout {
+            Layout::Monostatic => 1,
+            Layout::Iwr1443boost => self.rx_channels().len(),
+        };
+        columns * rows * per_position
+    }
+
     /// Loads and validates a scene file; meshes are loaded and placed.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
