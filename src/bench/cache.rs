@@ -8,6 +8,7 @@ use sha2::Digest;
 
 use super::suite::{Case, hex};
 use super::{BenchError, io};
+use crate::capture::space::{available_bytes, capture_dir_bytes};
 use crate::capture::{Capture, read_capture_dir};
 use crate::geometry::{TriMesh, load_mesh};
 use crate::sim::{simulate, write_simulation};
@@ -76,39 +77,9 @@ pub struct CachedCapture {
 /// fill the disk for the rest of the run (its results) and for the machine.
 pub const DISK_MARGIN_BYTES: u64 = 1 << 30;
 
-/// Bytes a case's capture takes on disk, about: its samples (complex f32) and the TX and RX
-/// position of every channel (f64). At the paper's aperture (1.16 M channels) that is 4.8 GB.
+/// Bytes a case's capture takes on disk, about (see [`capture_dir_bytes`]).
 pub fn capture_bytes(case: &Case) -> u64 {
-    let channels = case.scene.channels() as u64;
-    let samples = case.scene.plan.samples_per_chirp as u64;
-    channels * (samples * 8 + 2 * 3 * 8)
-}
-
-/// Free bytes on the filesystem that holds `path` (for an unprivileged user); None where the
-/// platform or the call cannot tell.
-pub fn available_bytes(path: &Path) -> Option<u64> {
-    #[cfg(unix)]
-    {
-        use std::os::unix::ffi::OsStrExt;
-        let c_path = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
-        let mut stats = std::mem::MaybeUninit::<libc::statvfs>::uninit();
-        // SAFETY: `c_path` is a NUL-terminated string that outlives the call, and `stats`
-        // points to writable memory of the size statvfs fills; it is read only on success.
-        let rc = unsafe { libc::statvfs(c_path.as_ptr(), stats.as_mut_ptr()) };
-        if rc != 0 {
-            return None;
-        }
-        // SAFETY: statvfs returned 0, so it initialised `stats`.
-        let stats = unsafe { stats.assume_init() };
-        #[allow(clippy::useless_conversion)] // the field types differ between platforms
-        let free = u64::from(stats.f_bavail).saturating_mul(u64::from(stats.f_frsize));
-        Some(free)
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = path;
-        None
-    }
+    capture_dir_bytes(case.scene.channels(), case.scene.plan.samples_per_chirp)
 }
 
 /// Reads the case's capture (`key`, from [`capture_key`]) from `cache_dir`, simulating and
@@ -281,12 +252,5 @@ radius_m = 0.02
         assert!(result.is_err());
         assert_eq!(entries(&cache), ["k"]);
         let _ = std::fs::remove_dir_all(&cache);
-    }
-
-    #[test]
-    fn the_filesystem_reports_free_space() {
-        let free = available_bytes(&std::env::temp_dir());
-        assert!(free.is_some(), "statvfs on the temporary directory failed");
-        assert_eq!(available_bytes(Path::new("/no/such/directory/here")), None);
     }
 }

@@ -12,6 +12,7 @@
 
 pub mod dir;
 pub mod npy;
+pub mod space;
 
 use std::sync::Arc;
 

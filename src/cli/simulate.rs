@@ -1,6 +1,7 @@
 use std::path::Path;
 
 use anyhow::{Result, bail};
+use mmnormd::capture::space::ensure_room;
 use mmnormd::sim::{Scene, simulate, write_simulation};
 
 pub fn run(scene_path: &Path, out: &Path, force: bool, quiet: bool) -> Result<()> {
@@ -11,6 +12,9 @@ pub fn run(scene_path: &Path, out: &Path, force: bool, quiet: bool) -> Result<()
             out.display()
         );
     }
+    // Refuse before an hour of simulation, not after it.
+    ensure_room(out, scene.channels(), scene.plan.samples_per_chirp)
+        .map_err(|e| anyhow::anyhow!("--out {e}"))?;
     tracing::info!(
         "simulating {} ({} object(s)) over a {:.3}×{:.3} m aperture at {:.3} mm spacing",
         scene_path.display(),
