@@ -138,7 +138,13 @@ pub fn run_scan_job(shared: &Arc<Shared>, request: ScanRequest, setup: ScanSetup
         s.rows = Some(setup.plan.rows.len());
         s.lost_packets = 0;
     }
-    let publish = |e: JobEvent| shared.publish(&e);
+    // The job's last event (its result) goes out after the worker is released, so a client
+    // that starts the next scan as soon as it sees the result is not told the worker is busy.
+    let last = Mutex::new(None);
+    let publish = |e: JobEvent| match e {
+        JobEvent::Result(_) => *lock(&last) = Some(e),
+        e => shared.publish(&e),
+    };
     let result = {
         let mut guard = lock(&shared.devices);
         match guard.as_mut() {
@@ -159,18 +165,26 @@ pub fn run_scan_job(shared: &Arc<Shared>, request: ScanRequest, setup: ScanSetup
     };
     if let Err(e) = result {
         tracing::error!("scan {name}: {e}");
-        shared.publish(&JobEvent::Error {
+        *lock(&last) = Some(JobEvent::Error {
             scan: name,
             message: e.to_string(),
         });
     }
+    release_then_publish(shared, last.into_inner().unwrap_or_else(|p| p.into_inner()));
+}
+
+/// Marks the worker idle and free, then publishes the job's last event.
+fn release_then_publish(shared: &Shared, last: Option<JobEvent>) {
     shared.set_idle();
     shared.busy.store(false, Ordering::Release);
+    if let Some(event) = last {
+        shared.publish(&event);
+    }
 }
 
 /// Re-runs the reconstruction of a stored scan into `recon-<unix seconds>/`.
 pub fn run_reconstruct_job(shared: &Arc<Shared>, scan: String) {
-    let result = (|| -> Result<PathBuf, JobError> {
+    let result = (|| -> Result<serde_json::Value, JobError> {
         let dir = scan_dir(&shared.lab.recording.data_dir, &scan)?;
         let capture_dir = dir.join("capture");
         let capture = read_capture_dir(&capture_dir)
@@ -199,19 +213,23 @@ pub fn run_reconstruct_job(shared: &Arc<Shared>, scan: String) {
             shared.quiet,
             &publish,
         )?;
-        let summary = json!({"event": "reconstructed", "scan": scan, "dir": paths.recon,
-            "points": recon.points_m.len(), "metrics": metrics});
-        shared.events.send(summary.to_string()).ok();
-        Ok(paths.recon)
+        Ok(json!({"event": "reconstructed", "scan": scan, "dir": paths.recon,
+            "points": recon.points_m.len(), "metrics": metrics}))
     })();
-    if let Err(e) = result {
-        shared.publish(&JobEvent::Error {
-            scan,
-            message: e.to_string(),
-        });
+    match result {
+        Ok(summary) => {
+            release_then_publish(shared, None);
+            // No subscriber is not an error.
+            shared.events.send(summary.to_string()).ok();
+        }
+        Err(e) => release_then_publish(
+            shared,
+            Some(JobEvent::Error {
+                scan,
+                message: e.to_string(),
+            }),
+        ),
     }
-    shared.set_idle();
-    shared.busy.store(false, Ordering::Release);
 }
 
 /// The folder of a stored scan, refusing names that leave the data directory.
