@@ -117,6 +117,9 @@ pub struct AutoVolume {
     /// grating lobes, unlike a decimated raster).
     pub coarse_antennas: usize,
     /// Coarse voxels with |S| above this fraction of the maximum form the high-power region.
+    /// 0.25 (−12 dB): a specular object returns most of its power from a few highlights, and
+    /// 0.5 (the default until 2026-11-25) cut the rest of a long object out of the box (see
+    /// `recon::volume`).
     pub power_fraction: f64,
     /// Padding around the high-power region, metres.
     pub pad_m: f64,
@@ -128,7 +131,7 @@ impl Default for AutoVolume {
             range_window_m: [0.05, 1.5],
             coarse_voxel_m: 0.006,
             coarse_antennas: 10000,
-            power_fraction: 0.5,
+            power_fraction: 0.25,
             pad_m: 0.03,
         }
     }
