@@ -385,12 +385,13 @@ impl Suite {
     pub fn select(&mut self, patterns: &[String]) -> Result<(), SuiteError> {
         let mut keep = vec![false; self.cases.len()];
         for pattern in patterns {
-            let exact = self.cases.iter().position(|c| c.id == *pattern);
+            let exact = self.cases.iter().any(|c| c.id == *pattern);
             let mut hits = 0;
             for (k, case) in keep.iter_mut().zip(&self.cases) {
-                let hit = match exact {
-                    Some(_) => case.id == *pattern,
-                    None => case.id.contains(pattern.as_str()),
+                let hit = if exact {
+                    case.id == *pattern
+                } else {
+                    case.id.contains(pattern.as_str())
                 };
                 if hit {
                     *k = true;

@@ -213,8 +213,10 @@ pub fn run_reconstruct_job(shared: &Arc<Shared>, scan: String) {
             shared.quiet,
             &publish,
         )?;
-        Ok(json!({"event": "reconstructed", "scan": scan, "dir": paths.recon,
-            "points": recon.points_m.len(), "metrics": metrics}))
+        Ok(
+            json!({"event": "reconstructed", "scan": scan, "dir": paths.recon,
+            "points": recon.points_m.len(), "metrics": metrics}),
+        )
     })();
     match result {
         Ok(summary) => {
