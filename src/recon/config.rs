@@ -30,6 +30,17 @@ pub enum Imaging {
     Backprojection,
 }
 
+/// Which voxels Li's threshold is computed over (`recon::mask`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LiVoxels {
+    /// Every voxel of the imaged box, as the authors do.
+    All,
+    /// Only the voxels above `normal_floor` of the maximum: the empty space that pads the
+    /// objects in the box does not move the threshold.
+    AboveFloor,
+}
+
 /// How each component's isosurface constant is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -214,6 +225,8 @@ pub struct ReconConfig {
     pub li_exponents: Vec<f64>,
     /// Li iterations before an attempt counts as failed (authors: 1000).
     pub li_max_iterations: usize,
+    /// The voxels Li's threshold is computed over (authors: every voxel of the box).
+    pub li_voxels: LiVoxels,
     /// A mask attempt is accepted when its oriented bounding box is at most this volume, m³
     /// (authors: 0.03).
     pub max_mask_box_m3: f64,
@@ -271,6 +284,7 @@ impl Default for ReconConfig {
             unit_candidates: true,
             li_exponents: vec![2.0, 2.5, 3.5, 4.0],
             li_max_iterations: 1000,
+            li_voxels: LiVoxels::All,
             max_mask_box_m3: 0.03,
             min_component_m3: 3.6e-5,
             fallback_component_m3: 4.5e-6,

@@ -478,6 +478,7 @@ fn mmnorm_fields(
         magnitude,
         grid,
         config.normal_floor,
+        config.li_voxels,
         &config.li_exponents,
         config.li_max_iterations,
         config.max_mask_box_m3,
