@@ -11,7 +11,7 @@
 //! Each test also prints the score against the whole top surface.
 
 use mmnormd::eval::{Metrics, evaluate};
-use mmnormd::recon::config::Method;
+use mmnormd::recon::config::{Method, SubsetRule};
 use mmnormd::recon::{ReconConfig, Reconstruction, reconstruct};
 use mmnormd::sim::truth::top_surface_with_normals;
 use mmnormd::sim::{Scene, simulate};
@@ -36,6 +36,11 @@ fn config(method: Method) -> ReconConfig {
 
 /// Simulates `aperture` + `objects`, reconstructs with mmNorm, and returns the visible truth.
 fn run(aperture: &str, objects: &str) -> Case {
+    run_with(aperture, objects, &config(Method::Mmnorm))
+}
+
+/// [`run`] with the reconstruction's parameters given.
+fn run_with(aperture: &str, objects: &str, recon_config: &ReconConfig) -> Case {
     let text = format!("{RADAR}[aperture]\n{aperture}\nlayout = \"monostatic\"\n{objects}");
     let scene = Scene::parse(&text, std::path::Path::new("inline.toml")).unwrap();
     let sim = simulate(&scene, true);
@@ -56,7 +61,7 @@ fn run(aperture: &str, objects: &str) -> Case {
         .filter(|(p, n)| visible(p, n))
         .map(|(p, n)| (*p, *n))
         .unzip();
-    let recon = reconstruct(&sim.capture, &config(Method::Mmnorm), true).unwrap();
+    let recon = reconstruct(&sim.capture, recon_config, true).unwrap();
     let full = evaluate(
         &recon.points_m,
         recon.normals.as_deref(),
@@ -187,4 +192,78 @@ fn two_separated_objects_are_two_components() {
         check.cost
     );
     assert!(check.agrees);
+}
+
+/// The median distance from component `component`'s points to the visible truth, metres.
+fn component_error_m(case: &Case, recon: &Reconstruction, component: u32) -> f64 {
+    let points: Vec<[f64; 3]> = recon
+        .points_m
+        .iter()
+        .zip(&recon.components)
+        .filter(|(_, c)| **c == component)
+        .map(|(p, _)| *p)
+        .collect();
+    let m = evaluate(&points, None, &case.truth, None, 0.015);
+    m.point_error_median_m.unwrap_or(f64::INFINITY)
+}
+
+/// A flat plate returns far more than a sphere beside it, and only to the antennas above it. The
+/// authors' strong-return filter then draws every antenna from over the plate, and the sphere's
+/// level is left to chance; a share of antennas per component finds both levels.
+#[test]
+fn a_weak_sphere_beside_a_strong_plate_gets_antennas_of_its_own() {
+    let aperture = "width_m = 0.24\nheight_m = 0.14\nspacing_m = 0.002\nz_m = 0.22";
+    let objects = "[[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [-0.07, 0.0, 0.02]\n\
+         [[object]]\nshape = \"sphere\"\nradius_m = 0.05\nposition_m = [0.07, 0.0, -0.03]\n";
+    let case = run(aperture, objects);
+    let s = &case.recon.summary;
+    assert_eq!(s.components.len(), 2, "{:?}", s.components);
+    let shares = s
+        .optimisation
+        .as_ref()
+        .and_then(|o| o.per_component.clone())
+        .expect("two components draw a share each");
+    println!("per component: {shares:?}");
+    assert!(shares.drawn.iter().all(|&d| d > 0), "{shares:?}");
+    let strongest = reconstruct(
+        &case.capture,
+        &ReconConfig {
+            optimisation: mmnormd::recon::config::Optimisation {
+                subset: SubsetRule::Strongest,
+                ..Default::default()
+            },
+            ..config(Method::Mmnorm)
+        },
+        true,
+    )
+    .unwrap();
+    // The sphere is the component whose points lie at x > 0.
+    let sphere = (1..=2u32)
+        .find(|&c| {
+            let xs: Vec<f64> = case
+                .recon
+                .points_m
+                .iter()
+                .zip(&case.recon.components)
+                .filter(|(_, k)| **k == c)
+                .map(|(p, _)| p[0])
+                .collect();
+            !xs.is_empty() && xs.iter().sum::<f64>() / xs.len() as f64 > 0.0
+        })
+        .expect("a component at the sphere");
+    let plate = 3 - sphere;
+    let error_mm = |recon: &Reconstruction, c: u32| component_error_m(&case, recon, c) * 1e3;
+    for (name, c) in [("plate", plate), ("sphere", sphere)] {
+        println!(
+            "{name}: median error {:.2} mm with a share each, {:.2} mm with the authors' filter",
+            error_mm(&case.recon, c),
+            error_mm(&strongest, c)
+        );
+        assert!(error_mm(&case.recon, c) < 1.5, "{name} with a share each");
+    }
+    assert!(
+        error_mm(&strongest, sphere) > 3.0,
+        "the authors' filter found the sphere too: the scene no longer tests the shares"
+    );
+    check_mmnorm(&case, "plate and sphere");
 }

@@ -6,6 +6,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use super::subset::SubsetRule;
+
 /// Which reconstruction to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -178,6 +180,9 @@ pub struct Optimisation {
     /// angle (degrees) of the bistatic bisector counts fully, falling as a raised cosine to
     /// nothing at the second; `[0, 0]` counts every hit alike (the paper's Eq. 11).
     pub specular_window_deg: [f64; 2],
+    /// How the antennas are chosen: `per_component` (a share for each component among the
+    /// antennas its specular echo reaches) or `strongest` (the authors' measured filter alone).
+    pub subset: SubsetRule,
 }
 
 impl Default for Optimisation {
@@ -194,6 +199,7 @@ impl Default for Optimisation {
             near_echo_tones: 4,
             near_echo_ratio: 0.3,
             specular_window_deg: [10.0, 20.0],
+            subset: SubsetRule::PerComponent,
         }
     }
 }

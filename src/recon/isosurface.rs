@@ -8,10 +8,11 @@
 //!   inset). A component whose range is shorter than twice the inset gets its centre only. The
 //!   authors also drop component 0's 15 lowest candidates and switch to 2λ steps from three
 //!   components on; mmnormd does neither: both are speed hacks of their Cartesian search.
-//! - **Antennas**: those whose measured peak inside the objects' range window is at least
-//!   `strong_fraction` of the strongest (relaxed to 0.1 and 0.05 when fewer than 20 qualify,
-//!   as the authors do), then a random subset of `antennas` drawn with a recorded seed (the
-//!   authors' draw is unseeded).
+//! - **Antennas** ([`super::subset`]): with one component, those whose measured peak inside the
+//!   objects' range window is at least `strong_fraction` of the strongest (relaxed to 0.1 and
+//!   0.05 when fewer than 20 qualify, as the authors do), then a random subset of `antennas`
+//!   drawn with a recorded seed (the authors' draw is unseeded). With several, an equal share
+//!   for each component among the antennas its own specular echo reaches (not in the paper).
 //! - **Simulation (Eq. 11)**: rays leave the antenna's phase centre on a uniform grid of angles
 //!   that covers the component's box; each first crossing of the level adds
 //!   `(1/d)·exp(+j2π f_t d/c)` with d the round trip TX → hit → RX plus the range offset. The
@@ -66,12 +67,13 @@ use serde::Serialize;
 use super::config::Optimisation;
 use super::image::box_round_trip_m;
 use super::near_echo::{NearEchoCanceller, NearEchoSubspace};
+use super::subset::{PerComponentShares, Subset, SubsetInputs, choose};
 use super::trace::{RaySamples, SampledField};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::geometry::vec3::{add, dot, scale, sub};
 use crate::progress::Progress;
-use crate::signal::{PaddedDftWindows, Rng, ToneAccumulator};
+use crate::signal::{PaddedDftWindows, ToneAccumulator};
 
 /// Candidate constants for a component whose RSDF spans [f_min, f_max].
 pub fn candidates(f_min: f64, f_max: f64, step: f64, inset: f64) -> Vec<f64> {
@@ -204,6 +206,9 @@ pub struct OptimisationReport {
     pub seed: u64,
     pub strong_fraction: f64,
     pub qualifying_antennas: usize,
+    /// With [`SubsetRule::PerComponent`] and several components: the pool of the specular
+    /// strengths and each component's share ([`super::subset`]).
+    pub per_component: Option<PerComponentShares>,
     /// Antennas whose measured chirp had an echo nearer than the objects removed
     /// ([`super::near_echo`]): in NLOS, the sheet's.
     pub near_echo_antennas: usize,
@@ -340,22 +345,26 @@ pub fn simulate_candidates(
     if strongest.is_nan() || strongest <= 0.0 {
         return Err(OptimisationError::NoEcho);
     }
-    let mut strong_fraction = opts.strong_fraction;
-    let mut qualifying: Vec<usize>;
-    loop {
-        qualifying = (0..peaks.len())
-            .filter(|&a| peaks[a] >= strong_fraction as f32 * strongest)
-            .collect();
-        if qualifying.len() >= 20 || strong_fraction <= 0.05 {
-            break;
-        }
-        strong_fraction = if strong_fraction > 0.1 { 0.1 } else { 0.05 };
-    }
-    let qualifying_count = qualifying.len();
-    let take = opts.antennas.min(qualifying.len());
-    Rng::new(opts.seed).partial_shuffle(&mut qualifying, take);
-    let mut chosen = qualifying[..take].to_vec();
-    chosen.sort_unstable();
+    let Subset {
+        antennas: chosen,
+        strong_fraction,
+        qualifying,
+        per_component,
+    } = choose(
+        &peaks,
+        strongest,
+        &SubsetInputs {
+            capture,
+            fields,
+            candidates,
+            rule: opts.subset,
+            strong_fraction: opts.strong_fraction,
+            antennas: opts.antennas,
+            seed: opts.seed,
+            ray_step_deg: opts.ray_step_deg,
+            specular_window_deg: opts.specular_window_deg,
+        },
+    );
 
     let windows: Vec<Window> = chosen
         .par_iter()
@@ -438,7 +447,8 @@ pub fn simulate_candidates(
     Ok(CandidateSpectra {
         seed: opts.seed,
         strong_fraction,
-        qualifying_antennas: qualifying_count,
+        qualifying_antennas: qualifying,
+        per_component,
         near_echo_antennas,
         antennas: chosen,
         windows,
@@ -454,6 +464,7 @@ pub struct CandidateSpectra {
     seed: u64,
     strong_fraction: f64,
     qualifying_antennas: usize,
+    per_component: Option<PerComponentShares>,
     near_echo_antennas: usize,
     antennas: Vec<usize>,
     windows: Vec<Window>,
@@ -550,6 +561,7 @@ pub fn optimise(
         seed: problem.seed,
         strong_fraction: problem.strong_fraction,
         qualifying_antennas: problem.qualifying_antennas,
+        per_component: problem.per_component.clone(),
         near_echo_antennas: problem.near_echo_antennas,
         antennas: problem.antennas.clone(),
         rays_per_antenna_mean: problem.rays_per_antenna_mean,
@@ -593,7 +605,7 @@ const MARCH_STEP_VOXELS: f32 = 0.5;
 /// Casts rays from `centre` over the angular box that covers `field` (uniform in the angles
 /// from nadir about x and y, `step_deg` apart) and marches each through it into `rays`.
 /// Returns the number of rays cast.
-fn march_rays(
+pub(super) fn march_rays(
     field: &SampledField,
     centre: [f64; 3],
     step_deg: f64,
@@ -637,7 +649,7 @@ fn march_rays(
 
 /// The specular window of the simulated hits: weight 1 while the angle between the field's
 /// gradient and the bistatic bisector is at most `full_rad`, a raised cosine to 0 at `cut_rad`.
-struct SpecularWindow<'a> {
+pub(super) struct SpecularWindow<'a> {
     field: &'a SampledField,
     full_rad: f32,
     cut_rad: f32,
@@ -645,7 +657,7 @@ struct SpecularWindow<'a> {
 
 impl<'a> SpecularWindow<'a> {
     /// The window `[full, cutoff]` (degrees) over `field`; None for a zero cutoff (Eq. 11).
-    fn new(window_deg: [f64; 2], field: &'a SampledField) -> Option<SpecularWindow<'a>> {
+    pub(super) fn new(window_deg: [f64; 2], field: &'a SampledField) -> Option<SpecularWindow<'a>> {
         (window_deg[1] > 0.0).then(|| SpecularWindow {
             field,
             full_rad: window_deg[0].to_radians() as f32,
@@ -677,7 +689,7 @@ impl<'a> SpecularWindow<'a> {
 
 /// Adds each ray's first crossing of `level` to `tones` with amplitude 1/d (Eq. 11), d the
 /// round trip TX → hit → RX, times the specular window's weight where there is one.
-fn add_hits(
+pub(super) fn add_hits(
     tones: &mut ToneAccumulator,
     rays: &[RaySamples],
     level: f32,
@@ -732,6 +744,7 @@ fn gradient(field: &SampledField, p: [f32; 3], level: f32) -> Option<[f32; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::signal::Rng;
 
     /// A sphere of radius 5 cm under a 60×44 cm monostatic raster 40 cm above its top (the
     /// paper's geometry), measured as its geometric-optics echo: one tone per antenna at the

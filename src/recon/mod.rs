@@ -10,7 +10,8 @@
 //! - [`components`]: 6-connected components;
 //! - [`rsdf`]: one relative signed distance function per component (Eq. 8);
 //! - [`trace`] and [`isosurface`]: the structural isosurface optimisation (Eq. 11–13) and the
-//!   ablations, with [`near_echo`] keeping the echoes nearer than the objects out of its cost;
+//!   ablations, with [`subset`] choosing its antennas and [`near_echo`] keeping the echoes
+//!   nearer than the objects out of its cost;
 //! - [`baselines`]: backprojection and interferometric points;
 //! - [`pipeline`]: the stages run in order, with timings, for `mmnormd reconstruct`.
 
@@ -28,6 +29,7 @@ pub mod output;
 pub mod pipeline;
 pub mod rma;
 pub mod rsdf;
+pub mod subset;
 pub mod threshold;
 pub mod trace;
 pub mod volume;
