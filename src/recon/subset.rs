@@ -35,6 +35,8 @@
 //!   every level is within 1.1 mm of the surface (median).
 
 use num_complex::Complex32;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use super::isosurface::{SpecularWindow, add_hits, march_rays};
 use super::trace::{RaySamples, SampledField};
