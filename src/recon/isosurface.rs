@@ -206,7 +206,7 @@ pub struct OptimisationReport {
     pub seed: u64,
     pub strong_fraction: f64,
     pub qualifying_antennas: usize,
-    /// With [`SubsetRule::PerComponent`] and several components: the pool of the specular
+    /// With [`super::subset::SubsetRule::PerComponent`] and several components: the pool of the specular
     /// strengths and each component's share ([`super::subset`]).
     pub per_component: Option<PerComponentShares>,
     /// Antennas whose measured chirp had an echo nearer than the objects removed
