@@ -57,8 +57,9 @@ pub enum SubsetRule {
 /// Antennas drawn into the pool from each of its two sources, at most.
 pub const POOL_ANTENNAS: usize = 128;
 /// A component dominates an antenna when its simulated echo holds at least this share of the
-/// components' summed energy there.
-pub const DOMINANT_SHARE: f32 = 0.5;
+/// components' summed energy there; while fewer antennas qualify than its share, the next
+/// step is tried (0: every antenna its echo reaches).
+pub const DOMINANCE_STEPS: [f32; 4] = [0.5, 0.25, 0.1, 0.0];
 /// Stream keys of the seeded draws.
 const POOL_STREAM: u64 = 11;
 const SHARE_STREAM: u64 = 12;
@@ -94,9 +95,9 @@ pub struct Subset {
 #[derive(Debug, Clone, Serialize)]
 pub struct PerComponentShares {
     pub pool: usize,
-    /// Pool antennas that qualified, per component.
+    /// Pool antennas that qualified for each component.
     pub qualifying: Vec<usize>,
-    /// Antennas drawn, per component (a drawn antenna may serve several).
+    /// Antennas drawn for each component (one antenna may serve several).
     pub drawn: Vec<usize>,
 }
 
@@ -153,28 +154,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
     let total: Vec<f32> = (0..pool.len())
         .map(|i| energy.iter().map(|e| e[i]).sum())
         .collect();
-    let qualified: Vec<Vec<usize>> = energy
-        .iter()
-        .map(|e| {
-            let best = e.iter().copied().fold(0.0f32, f32::max);
-            if best <= 0.0 {
-                return Vec::new();
-            }
-            let strong = |i: usize| e[i] >= inputs.strong_fraction as f32 * best;
-            let dominant: Vec<usize> = (0..pool.len())
-                .filter(|&i| e[i] >= DOMINANT_SHARE * total[i])
-                .collect();
-            let best_dominant = dominant.iter().map(|&i| e[i]).fold(0.0f32, f32::max);
-            let picked: Vec<usize> = if best_dominant > 0.0 {
-                let floor = inputs.strong_fraction as f32 * best_dominant;
-                dominant.into_iter().filter(|&i| e[i] >= floor).collect()
-            } else {
-                (0..pool.len()).filter(|&i| strong(i)).collect()
-            };
-            picked.into_iter().map(|i| pool[i]).collect()
-        })
-        .collect();
-    let seen = qualified.iter().filter(|q| !q.is_empty()).count();
+    let seen = energy.iter().filter(|e| e.iter().any(|&v| v > 0.0)).count();
     if seen == 0 {
         return Subset {
             antennas: authors(qualifying),
@@ -183,23 +163,38 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
             per_component: None,
         };
     }
+    let (mut shares, mut qualifying_own, mut drawn) = (Vec::new(), Vec::new(), Vec::new());
     let mut antennas = Vec::new();
-    let mut drawn = Vec::new();
-    let mut share_index = 0;
-    for (n, q) in qualified.iter().enumerate() {
-        if q.is_empty() {
+    for (n, e) in energy.iter().enumerate() {
+        if !e.iter().any(|&v| v > 0.0) {
+            shares.push(0);
+            qualifying_own.push(0);
             drawn.push(0);
             continue;
         }
-        let share = inputs.antennas / seen + usize::from(share_index < inputs.antennas % seen);
-        share_index += 1;
-        let d = draw(
-            q.clone(),
+        let share = inputs.antennas / seen
+            + usize::from(shares.iter().filter(|&&s| s > 0).count() < inputs.antennas % seen);
+        shares.push(share);
+        let mut picked = Vec::new();
+        for dominance in DOMINANCE_STEPS {
+            let held: Vec<usize> = (0..pool.len())
+                .filter(|&i| e[i] > 0.0 && e[i] >= dominance * total[i])
+                .collect();
+            let best = held.iter().map(|&i| e[i]).fold(0.0f32, f32::max);
+            let floor = inputs.strong_fraction as f32 * best;
+            picked = held.into_iter().filter(|&i| e[i] >= floor).collect();
+            if picked.len() >= share {
+                break;
+            }
+        }
+        qualifying_own.push(picked.len());
+        let own = draw(
+            picked.into_iter().map(|i| pool[i]).collect(),
             share,
             Rng::for_stream(inputs.seed, SHARE_STREAM, n as u64),
         );
-        drawn.push(d.len());
-        antennas.extend(d);
+        drawn.push(own.len());
+        antennas.extend(own);
     }
     antennas.sort_unstable();
     antennas.dedup();
@@ -209,7 +204,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         qualifying: count,
         per_component: Some(PerComponentShares {
             pool: pool.len(),
-            qualifying: qualified.iter().map(Vec::len).collect(),
+            qualifying: qualifying_own,
             drawn,
         }),
     }
