@@ -411,17 +411,15 @@ pub fn simulate_candidates(
                 let out = candidates[n]
                     .iter()
                     .map(|&level| {
-                        tones.clear();
-                        add_hits(
+                        let mut chirp = vec![Complex32::new(0.0, 0.0); t];
+                        render_level(
                             tones,
                             rays,
                             level as f32,
-                            &capture.tx_m[a],
-                            &capture.rx_m[a],
+                            (&capture.tx_m[a], &capture.rx_m[a]),
                             window.as_ref(),
+                            &mut chirp,
                         );
-                        let mut chirp = vec![Complex32::new(0.0, 0.0); t];
-                        tones.add_into(&mut chirp);
                         let len = windows[j].simulated_bins().1;
                         (dft.window(&chirp, &shifts[j], len, buffers), count)
                     })
@@ -687,9 +685,25 @@ impl<'a> SpecularWindow<'a> {
     }
 }
 
+/// The simulated chirp of the level `level` of the field `rays` were marched through, seen by
+/// the antenna `(tx, rx)`, written over `chirp` ([`add_hits`]; `tones` is scratch).
+pub(super) fn render_level(
+    tones: &mut ToneAccumulator,
+    rays: &[RaySamples],
+    level: f32,
+    (tx, rx): (&[f64; 3], &[f64; 3]),
+    window: Option<&SpecularWindow<'_>>,
+    chirp: &mut [Complex32],
+) {
+    tones.clear();
+    add_hits(tones, rays, level, tx, rx, window);
+    chirp.fill(Complex32::new(0.0, 0.0));
+    tones.add_into(chirp);
+}
+
 /// Adds each ray's first crossing of `level` to `tones` with amplitude 1/d (Eq. 11), d the
 /// round trip TX → hit → RX, times the specular window's weight where there is one.
-pub(super) fn add_hits(
+fn add_hits(
     tones: &mut ToneAccumulator,
     rays: &[RaySamples],
     level: f32,

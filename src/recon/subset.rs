@@ -48,7 +48,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::isosurface::{SpecularWindow, add_hits, march_rays};
+use super::isosurface::{SpecularWindow, march_rays, render_level};
 use super::trace::{RaySamples, SampledField};
 use crate::capture::Capture;
 use crate::signal::{Rng, ToneAccumulator};
@@ -247,17 +247,14 @@ fn echo_energies(inputs: &SubsetInputs<'_>, pool: &[usize]) -> Vec<Vec<f32>> {
                 inputs.candidates[n]
                     .iter()
                     .map(|&level| {
-                        tones.clear();
-                        add_hits(
+                        render_level(
                             tones,
                             rays,
                             level as f32,
-                            &capture.tx_m[a],
-                            &capture.rx_m[a],
+                            (&capture.tx_m[a], &capture.rx_m[a]),
                             window.as_ref(),
+                            chirp,
                         );
-                        chirp.fill(Complex32::new(0.0, 0.0));
-                        tones.add_into(chirp);
                         chirp.iter().map(Complex32::norm_sqr).sum::<f32>()
                     })
                     .fold(0.0f32, f32::max)
