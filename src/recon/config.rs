@@ -180,8 +180,9 @@ pub struct Optimisation {
     /// angle (degrees) of the bistatic bisector counts fully, falling as a raised cosine to
     /// nothing at the second; `[0, 0]` counts every hit alike (the paper's Eq. 11).
     pub specular_window_deg: [f64; 2],
-    /// How the antennas are chosen: `per_component` (a share for each component among the
-    /// antennas its specular echo reaches) or `strongest` (the authors' measured filter alone).
+    /// How the antennas are chosen: `per_component` (with several components, a share for each
+    /// among the antennas its simulated echo dominates) or `strongest` (the authors' measured
+    /// filter alone).
     pub subset: SubsetRule,
 }
 

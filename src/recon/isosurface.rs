@@ -12,7 +12,7 @@
 //!   objects' range window is at least `strong_fraction` of the strongest (relaxed to 0.1 and
 //!   0.05 when fewer than 20 qualify, as the authors do), then a random subset of `antennas`
 //!   drawn with a recorded seed (the authors' draw is unseeded). With several, an equal share
-//!   for each component among the antennas its own specular echo reaches (not in the paper).
+//!   for each component among the antennas its own simulated echo dominates (not in the paper).
 //! - **Simulation (Eq. 11)**: rays leave the antenna's phase centre on a uniform grid of angles
 //!   that covers the component's box; each first crossing of the level adds
 //!   `(1/d)·exp(+j2π f_t d/c)` with d the round trip TX → hit → RX plus the range offset. The
@@ -206,8 +206,8 @@ pub struct OptimisationReport {
     pub seed: u64,
     pub strong_fraction: f64,
     pub qualifying_antennas: usize,
-    /// With [`super::subset::SubsetRule::PerComponent`] and several components: the pool of the specular
-    /// strengths and each component's share ([`super::subset`]).
+    /// With [`super::subset::SubsetRule::PerComponent`] and several components: the pool of
+    /// simulated echo energies and each component's share ([`super::subset`]).
     pub per_component: Option<PerComponentShares>,
     /// Antennas whose measured chirp had an echo nearer than the objects removed
     /// ([`super::near_echo`]): in NLOS, the sheet's.

@@ -173,18 +173,17 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
             per_component: None,
         };
     }
-    let (mut shares, mut qualifying_own, mut drawn) = (Vec::new(), Vec::new(), Vec::new());
-    let mut antennas = Vec::new();
+    let (mut qualifying_own, mut drawn, mut antennas) = (Vec::new(), Vec::new(), Vec::new());
+    // Components served so far: the first `antennas % seen` get one antenna more.
+    let mut served = 0;
     for (n, e) in energy.iter().enumerate() {
         if !e.iter().any(|&v| v > 0.0) {
-            shares.push(0);
             qualifying_own.push(0);
             drawn.push(0);
             continue;
         }
-        let share = inputs.antennas / seen
-            + usize::from(shares.iter().filter(|&&s| s > 0).count() < inputs.antennas % seen);
-        shares.push(share);
+        let share = inputs.antennas / seen + usize::from(served < inputs.antennas % seen);
+        served += 1;
         let mut picked = Vec::new();
         for dominance in DOMINANCE_STEPS {
             let held: Vec<usize> = (0..pool.len())
