@@ -357,12 +357,7 @@ pub fn simulate_candidates(
             capture,
             fields,
             candidates,
-            rule: opts.subset,
-            strong_fraction: opts.strong_fraction,
-            antennas: opts.antennas,
-            seed: opts.seed,
-            ray_step_deg: opts.ray_step_deg,
-            specular_window_deg: opts.specular_window_deg,
+            opts,
         },
     );
 
@@ -393,39 +388,23 @@ pub fn simulate_candidates(
         .flat_map(|n| (0..subset).map(move |j| (n, j)))
         .collect();
     let progress = Progress::new("isosurface", tasks.len() as u64, quiet);
-    let centres = capture.centres_m();
     let per_task: Vec<Vec<(Vec<Complex32>, usize)>> = tasks
         .par_iter()
         .map_init(
-            || {
-                (
-                    ToneAccumulator::new(&capture.plan, capture.range_offset_m),
-                    Vec::new(),
-                    Default::default(),
-                )
-            },
-            |(tones, rays, buffers), &(n, j)| {
-                let a = chosen[j];
-                let count = march_rays(&fields[n], centres[a], opts.ray_step_deg, rays);
-                let window = SpecularWindow::new(opts.specular_window_deg, &fields[n]);
-                let out = candidates[n]
-                    .iter()
-                    .map(|&level| {
-                        let mut chirp = vec![Complex32::new(0.0, 0.0); t];
-                        render_level(
-                            tones,
-                            rays,
-                            level as f32,
-                            (&capture.tx_m[a], &capture.rx_m[a]),
-                            window.as_ref(),
-                            &mut chirp,
-                        );
-                        let len = windows[j].simulated_bins().1;
-                        (dft.window(&chirp, &shifts[j], len, buffers), count)
-                    })
-                    .collect();
+            || (LevelScratch::new(capture), Default::default()),
+            |(scratch, buffers), &(n, j)| {
+                let len = windows[j].simulated_bins().1;
+                let (count, spectra) = simulate_levels(
+                    scratch,
+                    capture,
+                    chosen[j],
+                    &fields[n],
+                    &candidates[n],
+                    opts,
+                    |chirp| dft.window(chirp, &shifts[j], len, buffers),
+                );
                 progress.inc(1);
-                out
+                spectra.into_iter().map(|s| (s, count)).collect()
             },
         )
         .collect();
@@ -603,7 +582,7 @@ const MARCH_STEP_VOXELS: f32 = 0.5;
 /// Casts rays from `centre` over the angular box that covers `field` (uniform in the angles
 /// from nadir about x and y, `step_deg` apart) and marches each through it into `rays`.
 /// Returns the number of rays cast.
-pub(super) fn march_rays(
+fn march_rays(
     field: &SampledField,
     centre: [f64; 3],
     step_deg: f64,
@@ -647,7 +626,7 @@ pub(super) fn march_rays(
 
 /// The specular window of the simulated hits: weight 1 while the angle between the field's
 /// gradient and the bistatic bisector is at most `full_rad`, a raised cosine to 0 at `cut_rad`.
-pub(super) struct SpecularWindow<'a> {
+struct SpecularWindow<'a> {
     field: &'a SampledField,
     full_rad: f32,
     cut_rad: f32,
@@ -655,7 +634,7 @@ pub(super) struct SpecularWindow<'a> {
 
 impl<'a> SpecularWindow<'a> {
     /// The window `[full, cutoff]` (degrees) over `field`; None for a zero cutoff (Eq. 11).
-    pub(super) fn new(window_deg: [f64; 2], field: &'a SampledField) -> Option<SpecularWindow<'a>> {
+    fn new(window_deg: [f64; 2], field: &'a SampledField) -> Option<SpecularWindow<'a>> {
         (window_deg[1] > 0.0).then(|| SpecularWindow {
             field,
             full_rad: window_deg[0].to_radians() as f32,
@@ -685,20 +664,58 @@ impl<'a> SpecularWindow<'a> {
     }
 }
 
-/// The simulated chirp of the level `level` of the field `rays` were marched through, seen by
-/// the antenna `(tx, rx)`, written over `chirp` ([`add_hits`]; `tones` is scratch).
-pub(super) fn render_level(
-    tones: &mut ToneAccumulator,
-    rays: &[RaySamples],
-    level: f32,
-    (tx, rx): (&[f64; 3], &[f64; 3]),
-    window: Option<&SpecularWindow<'_>>,
-    chirp: &mut [Complex32],
-) {
-    tones.clear();
-    add_hits(tones, rays, level, tx, rx, window);
-    chirp.fill(Complex32::new(0.0, 0.0));
-    tones.add_into(chirp);
+/// Per-thread buffers of [`simulate_levels`].
+pub(super) struct LevelScratch {
+    tones: ToneAccumulator,
+    rays: Vec<RaySamples>,
+    chirp: Vec<Complex32>,
+}
+
+impl LevelScratch {
+    pub(super) fn new(capture: &Capture) -> LevelScratch {
+        LevelScratch {
+            tones: ToneAccumulator::new(&capture.plan, capture.range_offset_m),
+            rays: Vec::new(),
+            chirp: vec![Complex32::new(0.0, 0.0); capture.plan.samples_per_chirp],
+        }
+    }
+}
+
+/// Eq. 11 for antenna `a` of `capture` and the levels `levels` of `field`: the rays are marched
+/// once from the antenna's phase centre, each level's chirp is simulated from their crossings
+/// ([`add_hits`], with `opts`' ray step and specular window) and handed to `each`. Returns the
+/// number of rays cast and `each`'s results, one per level.
+pub(super) fn simulate_levels<R>(
+    scratch: &mut LevelScratch,
+    capture: &Capture,
+    a: usize,
+    field: &SampledField,
+    levels: &[f64],
+    opts: &Optimisation,
+    mut each: impl FnMut(&[Complex32]) -> R,
+) -> (usize, Vec<R>) {
+    let (tx, rx) = (&capture.tx_m[a], &capture.rx_m[a]);
+    let centre = [0, 1, 2].map(|k| 0.5 * (tx[k] + rx[k]));
+    let count = march_rays(field, centre, opts.ray_step_deg, &mut scratch.rays);
+    let window = SpecularWindow::new(opts.specular_window_deg, field);
+    let out = levels
+        .iter()
+        .map(|&level| {
+            scratch.tones.clear();
+            add_hits(
+                &mut scratch.tones,
+                &scratch.rays,
+                level as f32,
+                tx,
+                rx,
+                window.as_ref(),
+            );
+            scratch.chirp.fill(Complex32::new(0.0, 0.0));
+            scratch.tones.add_into(&mut scratch.chirp);
+            each(&scratch.chirp)
+        })
+        .collect();
+    (count, out)
 }
 
 /// Adds each ray's first crossing of `level` to `tones` with amplitude 1/d (Eq. 11), d the

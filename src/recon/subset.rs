@@ -48,10 +48,11 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::isosurface::{SpecularWindow, march_rays, render_level};
-use super::trace::{RaySamples, SampledField};
+use super::config::Optimisation;
+use super::isosurface::{LevelScratch, simulate_levels};
+use super::trace::SampledField;
 use crate::capture::Capture;
-use crate::signal::{Rng, ToneAccumulator};
+use crate::signal::Rng;
 
 /// How the cost's antennas are chosen (`optimisation.subset`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -80,12 +81,8 @@ pub struct SubsetInputs<'a> {
     /// One per component, NaN outside it.
     pub fields: &'a [SampledField],
     pub candidates: &'a [Vec<f64>],
-    pub rule: SubsetRule,
-    pub strong_fraction: f64,
-    pub antennas: usize,
-    pub seed: u64,
-    pub ray_step_deg: f64,
-    pub specular_window_deg: [f64; 2],
+    /// The rule, the fraction, the count and the seed, and the simulation's ray step and window.
+    pub opts: &'a Optimisation,
 }
 
 /// The chosen antennas and how they were found.
@@ -137,26 +134,27 @@ fn draw(mut items: Vec<usize>, take: usize, mut rng: Rng) -> Vec<usize> {
 
 /// Chooses the cost's antennas from each antenna's measured peak in the objects' window.
 pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subset {
-    let (qualifying, strong_fraction) = strong_returns(peaks, strongest, inputs.strong_fraction);
-    let authors = |qualifying: Vec<usize>| draw(qualifying, inputs.antennas, Rng::new(inputs.seed));
+    let (qualifying, strong_fraction) =
+        strong_returns(peaks, strongest, inputs.opts.strong_fraction);
     let count = qualifying.len();
-    if inputs.rule == SubsetRule::Strongest || inputs.fields.len() < 2 {
-        return Subset {
-            antennas: authors(qualifying),
-            strong_fraction,
-            qualifying: count,
-            per_component: None,
-        };
+    let authors = |qualifying: Vec<usize>| Subset {
+        antennas: draw(qualifying, inputs.opts.antennas, Rng::new(inputs.opts.seed)),
+        strong_fraction,
+        qualifying: count,
+        per_component: None,
+    };
+    if inputs.opts.subset == SubsetRule::Strongest || inputs.fields.len() < 2 {
+        return authors(qualifying);
     }
     let mut pool = draw(
         (0..peaks.len()).collect(),
         POOL_ANTENNAS,
-        Rng::for_stream(inputs.seed, POOL_STREAM, 0),
+        Rng::for_stream(inputs.opts.seed, POOL_STREAM, 0),
     );
     pool.extend(draw(
         qualifying.clone(),
         POOL_ANTENNAS,
-        Rng::for_stream(inputs.seed, POOL_STREAM, 1),
+        Rng::for_stream(inputs.opts.seed, POOL_STREAM, 1),
     ));
     pool.sort_unstable();
     pool.dedup();
@@ -166,12 +164,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         .collect();
     let seen = energy.iter().filter(|e| e.iter().any(|&v| v > 0.0)).count();
     if seen == 0 {
-        return Subset {
-            antennas: authors(qualifying),
-            strong_fraction,
-            qualifying: count,
-            per_component: None,
-        };
+        return authors(qualifying);
     }
     let (mut qualifying_own, mut drawn, mut antennas) = (Vec::new(), Vec::new(), Vec::new());
     // Components served so far: the first `antennas % seen` get one antenna more.
@@ -182,7 +175,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
             drawn.push(0);
             continue;
         }
-        let share = inputs.antennas / seen + usize::from(served < inputs.antennas % seen);
+        let share = inputs.opts.antennas / seen + usize::from(served < inputs.opts.antennas % seen);
         served += 1;
         let mut picked = Vec::new();
         for dominance in DOMINANCE_STEPS {
@@ -190,7 +183,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
                 .filter(|&i| e[i] > 0.0 && e[i] >= dominance * total[i])
                 .collect();
             let best = held.iter().map(|&i| e[i]).fold(0.0f32, f32::max);
-            let floor = inputs.strong_fraction as f32 * best;
+            let floor = inputs.opts.strong_fraction as f32 * best;
             picked = held.into_iter().filter(|&i| e[i] >= floor).collect();
             if picked.len() >= share {
                 break;
@@ -200,7 +193,7 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         let own = draw(
             picked.into_iter().map(|i| pool[i]).collect(),
             share,
-            Rng::for_stream(inputs.seed, SHARE_STREAM, n as u64),
+            Rng::for_stream(inputs.opts.seed, SHARE_STREAM, n as u64),
         );
         drawn.push(own.len());
         antennas.extend(own);
@@ -223,40 +216,24 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
 /// the largest over its candidate levels of the chirp's energy Σ_t |h_t|² (Eq. 11 with the
 /// specular window, as the cost simulates it).
 fn echo_energies(inputs: &SubsetInputs<'_>, pool: &[usize]) -> Vec<Vec<f32>> {
-    let capture = inputs.capture;
-    let t = capture.plan.samples_per_chirp;
-    let centres = capture.centres_m();
     let tasks: Vec<(usize, usize)> = (0..inputs.fields.len())
         .flat_map(|n| pool.iter().map(move |&a| (n, a)))
         .collect();
     let flat: Vec<f32> = tasks
         .par_iter()
         .map_init(
-            || {
-                (
-                    ToneAccumulator::new(&capture.plan, capture.range_offset_m),
-                    Vec::<RaySamples>::new(),
-                    vec![Complex32::new(0.0, 0.0); t],
-                )
-            },
-            |(tones, rays, chirp), &(n, a)| {
-                let field = &inputs.fields[n];
-                march_rays(field, centres[a], inputs.ray_step_deg, rays);
-                let window = SpecularWindow::new(inputs.specular_window_deg, field);
-                inputs.candidates[n]
-                    .iter()
-                    .map(|&level| {
-                        render_level(
-                            tones,
-                            rays,
-                            level as f32,
-                            (&capture.tx_m[a], &capture.rx_m[a]),
-                            window.as_ref(),
-                            chirp,
-                        );
-                        chirp.iter().map(Complex32::norm_sqr).sum::<f32>()
-                    })
-                    .fold(0.0f32, f32::max)
+            || LevelScratch::new(inputs.capture),
+            |scratch, &(n, a)| {
+                let (_, energies) = simulate_levels(
+                    scratch,
+                    inputs.capture,
+                    a,
+                    &inputs.fields[n],
+                    &inputs.candidates[n],
+                    inputs.opts,
+                    |chirp| chirp.iter().map(Complex32::norm_sqr).sum::<f32>(),
+                );
+                energies.into_iter().fold(0.0f32, f32::max)
             },
         )
         .collect();
