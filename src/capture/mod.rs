@@ -160,11 +160,13 @@ impl Capture {
 
     /// Virtual phase centre (TX + RX)/2 of every antenna.
     pub fn centres_m(&self) -> Vec<[f64; 3]> {
-        self.tx_m
-            .iter()
-            .zip(&self.rx_m)
-            .map(|(t, r)| [0, 1, 2].map(|k| 0.5 * (t[k] + r[k])))
-            .collect()
+        (0..self.tx_m.len()).map(|a| self.centre_m(a)).collect()
+    }
+
+    /// Virtual phase centre (TX + RX)/2 of antenna `a`.
+    pub fn centre_m(&self, a: usize) -> [f64; 3] {
+        let (t, r) = (&self.tx_m[a], &self.rx_m[a]);
+        [0, 1, 2].map(|k| 0.5 * (t[k] + r[k]))
     }
 
     /// Checks shapes and finiteness; the first problem found is reported with its index.

@@ -388,13 +388,13 @@ pub fn simulate_candidates(
         .flat_map(|n| (0..subset).map(move |j| (n, j)))
         .collect();
     let progress = Progress::new("isosurface", tasks.len() as u64, quiet);
-    let per_task: Vec<Vec<(Vec<Complex32>, usize)>> = tasks
+    let per_task: Vec<(usize, Vec<Vec<Complex32>>)> = tasks
         .par_iter()
         .map_init(
             || (LevelScratch::new(capture), Default::default()),
             |(scratch, buffers), &(n, j)| {
                 let len = windows[j].simulated_bins().1;
-                let (count, spectra) = simulate_levels(
+                let simulated = simulate_levels(
                     scratch,
                     capture,
                     chosen[j],
@@ -404,23 +404,24 @@ pub fn simulate_candidates(
                     |chirp| dft.window(chirp, &shifts[j], len, buffers),
                 );
                 progress.inc(1);
-                spectra.into_iter().map(|s| (s, count)).collect()
+                simulated
             },
         )
         .collect();
+    // The mean over every (component, candidate, antenna) of the rays cast for it.
+    let rays_total: usize = per_task.iter().map(|(count, s)| count * s.len()).sum();
     // Reorder to [component][candidate][antenna]: each task yields its candidates in order.
-    let mut per_task: Vec<_> = per_task.into_iter().map(Vec::into_iter).collect();
-    let mut simulated: Vec<(Vec<Complex32>, usize)> = Vec::with_capacity(tasks.len() * 8);
+    let mut per_task: Vec<_> = per_task.into_iter().map(|(_, s)| s.into_iter()).collect();
+    let mut spectra: Vec<Vec<Complex32>> = Vec::with_capacity(tasks.len() * 8);
     for (n, levels) in candidates.iter().enumerate() {
         for _ in levels {
             for task in &mut per_task[n * subset..(n + 1) * subset] {
-                simulated.extend(task.next());
+                spectra.extend(task.next());
             }
         }
     }
     progress.finish();
-    let rays_total: usize = simulated.iter().map(|s| s.1).sum();
-    let rays_per_antenna_mean = rays_total as f64 / simulated.len().max(1) as f64;
+    let rays_per_antenna_mean = rays_total as f64 / spectra.len().max(1) as f64;
     Ok(CandidateSpectra {
         seed: opts.seed,
         strong_fraction,
@@ -429,7 +430,7 @@ pub fn simulate_candidates(
         near_echo_antennas,
         antennas: chosen,
         windows,
-        spectra: simulated.into_iter().map(|s| s.0).collect(),
+        spectra,
         candidates: candidates.to_vec(),
         rays_per_antenna_mean,
     })
@@ -695,8 +696,12 @@ pub(super) fn simulate_levels<R>(
     mut each: impl FnMut(&[Complex32]) -> R,
 ) -> (usize, Vec<R>) {
     let (tx, rx) = (&capture.tx_m[a], &capture.rx_m[a]);
-    let centre = [0, 1, 2].map(|k| 0.5 * (tx[k] + rx[k]));
-    let count = march_rays(field, centre, opts.ray_step_deg, &mut scratch.rays);
+    let count = march_rays(
+        field,
+        capture.centre_m(a),
+        opts.ray_step_deg,
+        &mut scratch.rays,
+    );
     let window = SpecularWindow::new(opts.specular_window_deg, field);
     let out = levels
         .iter()
