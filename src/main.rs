@@ -240,6 +240,9 @@ fn main() -> std::process::ExitCode {
             }
         };
     };
+    if !matches!(command, Command::Demo(_) | Command::Sim { .. }) {
+        end_quietly_on_closed_stdout();
+    }
     let result = match command {
         Command::Simulate { scene, out, force } => {
             cli::simulate::run(&scene, &out, force, args.quiet)
@@ -323,6 +326,20 @@ fn main() -> std::process::ExitCode {
         } => cli::robot::log(a, args.quiet),
     };
     report(result)
+}
+
+/// A report printed into a pipe that the reader has closed (`mmnormd eval … | head -3`) ends
+/// the program quietly, as it ends other Unix tools, instead of panicking in `println!`. The
+/// Rust runtime ignores SIGPIPE; this restores the default for the one-shot commands. The daemon,
+/// the demo and the device simulators keep it ignored: they serve sockets, and a peer that
+/// hangs up must not stop them.
+fn end_quietly_on_closed_stdout() {
+    #[cfg(unix)]
+    // SAFETY: sets a signal disposition to its default before any thread of ours has started;
+    // no handler runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }
 
 fn report(result: anyhow::Result<()>) -> std::process::ExitCode {

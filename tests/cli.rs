@@ -64,6 +64,33 @@ fn profile_prints_the_derived_frequency_plan() {
     assert!(t.contains("code 1214"), "{t}");
 }
 
+/// `mmnormd profile … | head -1`: the reader has gone before the first line is printed. The
+/// pipe's read end is closed before the program starts, so every write fails with EPIPE.
+#[cfg(unix)]
+#[test]
+fn a_report_into_a_closed_pipe_ends_quietly_instead_of_panicking() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args([
+            "profile",
+            repo("firmware_cfg/iwr1443_mmnorm.cfg").to_str().unwrap(),
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(
+        o.status.signal(),
+        Some(libc::SIGPIPE),
+        "{:?}: {stderr}",
+        o.status
+    );
+}
+
 #[test]
 fn simulate_then_inspect_writes_a_capture_truth_and_a_picture() {
     let dir = tempfile::tempdir().unwrap();
