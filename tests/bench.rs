@@ -124,7 +124,43 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
         .count();
     assert_eq!(cached, 4);
 
-    // A report of the finished cases into a directory that does not exist yet.
+    // A case finished by another build is reconstructed again from its cached capture; the
+    // others are not.
+    let runs = out.path().join("work/runs");
+    let set_build = |case: &str, build: &str| {
+        let path = runs.join(case).join("result.json");
+        let mut json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("result.json"))
+                .expect("json");
+        json["build"] = build.into();
+        std::fs::write(&path, json.to_string()).expect("rewrite result.json");
+    };
+    let build_of = |case: &str| {
+        let text = std::fs::read_to_string(runs.join(case).join("result.json")).expect("json");
+        serde_json::from_str::<serde_json::Value>(&text).expect("json")["build"]
+            .as_str()
+            .map(str::to_string)
+    };
+    let ours = mmnormd::bench::run::build_id();
+    assert_eq!(ours.len(), 16);
+    assert_eq!(build_of("sphere-flat-los").as_deref(), Some(ours));
+    let other = outcome.results[1].id.clone();
+    assert_ne!(other, "sphere-flat-los");
+    let other_before = std::fs::metadata(runs.join(&other).join("result.json"))
+        .and_then(|m| m.modified())
+        .expect("result.json");
+    set_build("sphere-flat-los", "0123456789abcdef");
+    let third = run_suite(&suite, out.path(), &opts).expect("third run");
+    assert_eq!(third.results.len(), 4);
+    assert_eq!(build_of("sphere-flat-los").as_deref(), Some(ours));
+    let other_after = std::fs::metadata(runs.join(&other).join("result.json"))
+        .and_then(|m| m.modified())
+        .expect("result.json");
+    assert_eq!(other_before, other_after, "{other} was run again");
+
+    // A report of the finished cases into a directory that does not exist yet: it takes any
+    // build's results and says which.
+    set_build(&other, "0123456789abcdef");
     let elsewhere = out.path().join("reports/again");
     let report_only = BenchOptions {
         work_dir: Some(out.path().join("work")),
@@ -135,6 +171,15 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
     let reported = run_suite(&suite, &elsewhere, &report_only).expect("report only");
     assert_eq!(reported.results.len(), 4);
     assert!(elsewhere.join("report.md").is_file() && elsewhere.join("results.csv").is_file());
+    let report = std::fs::read_to_string(elsewhere.join("report.md")).expect("report");
+    assert!(
+        report.contains(&format!(
+            "several builds of mmnormd: 0123456789abcdef, {ours}"
+        )) || report.contains(&format!(
+            "several builds of mmnormd: {ours}, 0123456789abcdef"
+        )),
+        "{report}"
+    );
 }
 
 #[test]

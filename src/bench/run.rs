@@ -2,8 +2,10 @@
 //! ablations sharing the normal field and RSDFs, the two baselines, and the scores. Each case
 //! leaves `runs/<id>/`: the points of each method (`<method>.ply`), their per-point scores
 //! (`<method>.scores.npy`: point error, relative error, normal cosine) and, written last,
-//! `result.json`. A case whose `result.json` carries the same key is not run again, so an
-//! interrupted bench resumes where it stopped.
+//! `result.json`. A case whose `result.json` carries the same key and was written by the same
+//! build (the running executable's hash, [`build_id`]) is not run again, so an interrupted bench
+//! resumes where it stopped, and a rebuilt one reconstructs every case again from the cached
+//! captures. `--report-only` reads the results of any build.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -55,6 +57,10 @@ pub struct MethodResult {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CaseResult {
     pub key: String,
+    /// The build that reconstructed the case ([`build_id`]; empty in results written before
+    /// it was recorded).
+    #[serde(default)]
+    pub build: String,
     pub id: String,
     pub scene: String,
     pub pose: Pose,
@@ -79,7 +85,29 @@ pub struct RunOptions {
     pub quiet: bool,
 }
 
-/// The resume key of a case: its capture, its reconstruction settings, τ and this build.
+/// The build that runs: the first 16 hex digits of the SHA-256 of the running executable, so
+/// that any change to the code makes finished cases run again. When the executable cannot be
+/// read it is the package version alone, with a warning.
+pub fn build_id() -> &'static str {
+    static ID: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    ID.get_or_init(|| {
+        let exe = std::env::current_exe().and_then(std::fs::read);
+        match exe {
+            Ok(bytes) => hex(&sha2::Sha256::digest(&bytes))[..16].to_string(),
+            Err(e) => {
+                tracing::warn!(
+                    "cannot read the running executable ({e}): finished cases are reused \
+                     whichever build of mmnormd {} wrote them",
+                    env!("CARGO_PKG_VERSION")
+                );
+                env!("CARGO_PKG_VERSION").to_string()
+            }
+        }
+    })
+}
+
+/// The resume key of a case: its capture, its reconstruction settings, τ and the package
+/// version (the build is compared apart, [`build_id`]).
 pub fn result_key(case: &Case, capture_key: &str, tau_m: f64) -> String {
     let mut h = sha2::Sha256::new();
     h.update(env!("CARGO_PKG_VERSION").as_bytes());
@@ -205,11 +233,11 @@ pub fn run_cases(cases: &[Case], opts: &RunOptions) -> Vec<Result<CaseResult, St
         .collect()
 }
 
-/// Reads a finished case's result if its key matches.
-fn finished(dir: &Path, key: &str) -> Option<CaseResult> {
+/// The case's result in `dir` if it carries `key` and, when `build` is given, was written by it.
+fn finished(dir: &Path, key: &str, build: Option<&str>) -> Option<CaseResult> {
     let text = std::fs::read_to_string(dir.join("result.json")).ok()?;
     let r: CaseResult = serde_json::from_str(&text).ok()?;
-    (r.key == key).then_some(r)
+    (r.key == key && build.is_none_or(|b| r.build == b)).then_some(r)
 }
 
 /// The case's capture key and result key.
@@ -219,9 +247,9 @@ fn keys(case: &Case, opts: &RunOptions) -> (String, String) {
     (capture_key, key)
 }
 
-/// The case's result if an earlier run finished it with the same settings.
+/// The case's result if an earlier run finished it with the same settings, by any build.
 pub fn finished_result(case: &Case, opts: &RunOptions) -> Option<CaseResult> {
-    finished(&opts.runs_dir.join(&case.id), &keys(case, opts).1)
+    finished(&opts.runs_dir.join(&case.id), &keys(case, opts).1, None)
 }
 
 /// Runs one case (or reads it back when already done).
@@ -232,7 +260,7 @@ pub fn run_case(
 ) -> Result<CaseResult, BenchError> {
     let dir = opts.runs_dir.join(&case.id);
     let (capture_key, key) = keys(case, opts);
-    if let Some(done) = finished(&dir, &key) {
+    if let Some(done) = finished(&dir, &key, Some(build_id())) {
         return Ok(done);
     }
     stage("simulate");
@@ -339,6 +367,7 @@ pub fn run_case(
     )?;
     let result = CaseResult {
         key,
+        build: build_id().to_string(),
         id: case.id.clone(),
         scene: case.scene_name.clone(),
         pose: case.pose,
