@@ -163,7 +163,8 @@ pub struct Optimisation {
     /// Seed of the subset (recorded in summary.json).
     pub seed: u64,
     /// Strong-return filter: an antenna qualifies when its peak in the object's range window is
-    /// at least this fraction of the strongest antenna's.
+    /// at least this fraction of the strongest antenna's (with a share per component: when its
+    /// simulated echo amplitude is at least this fraction of the component's strongest).
     pub strong_fraction: f64,
     /// Angular spacing of the traced rays, degrees.
     pub ray_step_deg: f64,
