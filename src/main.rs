@@ -240,7 +240,10 @@ fn main() -> std::process::ExitCode {
             }
         };
     };
-    if !matches!(command, Command::Demo(_) | Command::Sim { .. }) {
+    if !matches!(
+        command,
+        Command::Demo(_) | Command::Sim { .. } | Command::Capture { .. }
+    ) {
         end_quietly_on_closed_stdout();
     }
     let result = match command {
@@ -330,9 +333,9 @@ fn main() -> std::process::ExitCode {
 
 /// A report printed into a pipe that the reader has closed (`mmnormd eval … | head -3`) ends
 /// the program quietly, as it ends other Unix tools, instead of panicking in `println!`. The
-/// Rust runtime ignores SIGPIPE; this restores the default for the one-shot commands. The daemon,
-/// the demo and the device simulators keep it ignored: they serve sockets, and a peer that
-/// hangs up must not stop them.
+/// Rust runtime ignores SIGPIPE; this restores the default for the one-shot commands. The
+/// daemon, the demo, the device simulators and `capture` keep it ignored: they serve sockets or
+/// record from devices, and neither a peer that hangs up nor a closed log pipe may stop them.
 fn end_quietly_on_closed_stdout() {
     #[cfg(unix)]
     // SAFETY: sets a signal disposition to its default before any thread of ours has started;
