@@ -108,15 +108,17 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
     assert!(copy.contains("](fig12a_f_score.png)") || copy.contains("/fig12a_f_score.png)"));
 
     // A second run finds every case finished and runs none of them again.
-    let before = std::fs::metadata(out.path().join("work/runs/sphere-flat-los/result.json"))
-        .and_then(|m| m.modified())
-        .expect("result.json");
+    let runs = out.path().join("work/runs");
+    let result_json = |case: &str| runs.join(case).join("result.json");
+    let written = |case: &str| {
+        std::fs::metadata(result_json(case))
+            .and_then(|m| m.modified())
+            .expect("result.json")
+    };
+    let before = written("sphere-flat-los");
     let again = run_suite(&suite, out.path(), &opts).expect("second run");
     assert_eq!(again.results.len(), 4);
-    let after = std::fs::metadata(out.path().join("work/runs/sphere-flat-los/result.json"))
-        .and_then(|m| m.modified())
-        .expect("result.json");
-    assert_eq!(before, after);
+    assert_eq!(before, written("sphere-flat-los"));
     let cached = std::fs::read_dir(out.path().join("work/captures"))
         .expect("cache")
         .filter_map(Result::ok)
@@ -126,9 +128,8 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
 
     // A case finished by another build is reconstructed again from its cached capture; the
     // others are not.
-    let runs = out.path().join("work/runs");
     let set_build = |case: &str, build: &str| {
-        let path = runs.join(case).join("result.json");
+        let path = result_json(case);
         let mut json: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&path).expect("result.json"))
                 .expect("json");
@@ -136,7 +137,7 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
         std::fs::write(&path, json.to_string()).expect("rewrite result.json");
     };
     let build_of = |case: &str| {
-        let text = std::fs::read_to_string(runs.join(case).join("result.json")).expect("json");
+        let text = std::fs::read_to_string(result_json(case)).expect("json");
         serde_json::from_str::<serde_json::Value>(&text).expect("json")["build"]
             .as_str()
             .map(str::to_string)
@@ -146,17 +147,12 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
     assert_eq!(build_of("sphere-flat-los").as_deref(), Some(ours));
     let other = outcome.results[1].id.clone();
     assert_ne!(other, "sphere-flat-los");
-    let other_before = std::fs::metadata(runs.join(&other).join("result.json"))
-        .and_then(|m| m.modified())
-        .expect("result.json");
+    let other_before = written(&other);
     set_build("sphere-flat-los", "0123456789abcdef");
     let third = run_suite(&suite, out.path(), &opts).expect("third run");
     assert_eq!(third.results.len(), 4);
     assert_eq!(build_of("sphere-flat-los").as_deref(), Some(ours));
-    let other_after = std::fs::metadata(runs.join(&other).join("result.json"))
-        .and_then(|m| m.modified())
-        .expect("result.json");
-    assert_eq!(other_before, other_after, "{other} was run again");
+    assert_eq!(other_before, written(&other), "{other} was run again");
 
     // A report of the finished cases into a directory that does not exist yet: it takes any
     // build's results and says which.
