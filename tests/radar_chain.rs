@@ -145,7 +145,7 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
         powerup_garbage_bytes: 64,
         garble_echo_probability: 0.2,
         drop_reply_probability: 0.2,
-        silent_after_start: false,
+        ..CliFaults::default()
     };
     let b = bench(config);
     let profile = profile(&b.lab);
@@ -180,6 +180,40 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
             .iter()
             .all(|o| o.attempts <= 4 && o.accepted == Accepted::Done)
     );
+    assert_eq!(cli.sensor_starts, 1);
+}
+
+#[test]
+fn a_link_that_stalls_for_4_5_s_is_waited_out() {
+    let mut config = lab();
+    config.sim.cli_faults = CliFaults {
+        seed: 1,
+        stall_probability: 0.1,
+        stall_ms: 4500,
+        ..CliFaults::default()
+    };
+    let b = bench(config);
+    let profile = profile(&b.lab);
+    let port = open_serial(&b.lab.radar).unwrap();
+    let mut radar = CliRadar::new(port, b.lab.radar.session_config());
+    let started = std::time::Instant::now();
+    let outcomes = radar.configure(&profile).unwrap();
+    radar.start().unwrap();
+    let cli = b.chain.radar.stats();
+    println!(
+        "CLI link stalls: {} of {} lines held 4.5 s; {} commands done, {} retries, in {:.1} s",
+        cli.stalls,
+        cli.lines,
+        outcomes.len(),
+        outcomes.iter().map(|o| o.attempts - 1).sum::<u32>(),
+        started.elapsed().as_secs_f64()
+    );
+    assert!(cli.stalls >= 1, "the fault fired");
+    assert_eq!(
+        outcomes.len(),
+        mmnormd::radar::control::configure_commands(&profile).len()
+    );
+    assert!(outcomes.iter().all(|o| o.accepted == Accepted::Done));
     assert_eq!(cli.sensor_starts, 1);
 }
 

@@ -280,10 +280,17 @@ impl SimConfig {
                 "drop_reply_probability",
                 self.cli_faults.drop_reply_probability,
             ),
+            ("stall_probability", self.cli_faults.stall_probability),
         ] {
             if !(0.0..=1.0).contains(&p) {
                 return Err(format!("sim.cli_faults.{name} = {p} must lie in 0..=1"));
             }
+        }
+        if self.cli_faults.stall_ms > 60_000 {
+            return Err(format!(
+                "sim.cli_faults.stall_ms = {} is above 60000",
+                self.cli_faults.stall_ms
+            ));
         }
         let r = &self.robot;
         for (name, v) in [
@@ -394,6 +401,18 @@ mod tests {
         assert!(e.to_string().contains("loss_probability = 2"), "{e}");
         let e = LabConfig::parse("[dca1000]\nhost_ip = \"192.168.33\"\n", p).unwrap_err();
         assert!(e.to_string().contains("host_ip"), "{e}");
+        let e = LabConfig::parse("[sim.cli_faults]\nstall_probability = -0.1\n", p).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("sim.cli_faults.stall_probability = -0.1 must lie in 0..=1"),
+            "{e}"
+        );
+        let e = LabConfig::parse("[sim.cli_faults]\nstall_ms = 90000\n", p).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("sim.cli_faults.stall_ms = 90000 is above 60000"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -11,7 +11,9 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use super::RadarProfile;
-use super::cli::{CliError, CliSession, CommandOutcome, PromptKind, SessionConfig};
+use super::cli::{
+    CliError, CliSession, CommandOutcome, DEFAULT_RESYNC_ATTEMPTS, PromptKind, SessionConfig,
+};
 
 /// The `[radar]` section of a lab config.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -37,7 +39,7 @@ impl Default for RadarConfig {
             baud_rate: 115_200,
             command_timeout_ms: 1000,
             retries: 3,
-            resync_attempts: 10,
+            resync_attempts: DEFAULT_RESYNC_ATTEMPTS,
             resync_interval_ms: 200,
         }
     }

@@ -12,8 +12,9 @@
 //! the DCA1000 simulator.
 //!
 //! Seeded faults: power-up garbage (bytes on the line and a half-typed line in the input buffer),
-//! garbled echoes, dropped replies, and a radar that answers `Done` to `sensorStart` but never
-//! streams.
+//! garbled echoes, dropped replies, a link that stalls (after a read, nothing moves either way for
+//! `stall_ms`, as when a busy host's kernel holds a TTY's bytes), and a radar that answers `Done`
+//! to `sensorStart` but never streams.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -36,6 +37,10 @@ pub struct CliFaults {
     pub drop_reply_probability: f64,
     /// `sensorStart` answers `Done` but no frames follow.
     pub silent_after_start: bool,
+    /// After each read that completes a line, the chance that the link stalls: for `stall_ms`
+    /// the PTY shell neither reads nor writes, and the replies to those lines wait.
+    pub stall_probability: f64,
+    pub stall_ms: u64,
 }
 
 /// How the firmware answers a command it does not know.
@@ -70,6 +75,7 @@ pub struct CliSimStats {
     pub dropped_replies: u64,
     pub garbled_echoes: u64,
     pub sensor_starts: u64,
+    pub stalls: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -90,6 +96,7 @@ pub struct CliSimCore {
     script: Vec<String>,
     state: SensorState,
     events: Vec<SensorEvent>,
+    stall: Option<Duration>,
     stats: CliSimStats,
 }
 
@@ -110,6 +117,7 @@ impl CliSimCore {
             script: Vec::new(),
             state: SensorState::Stopped,
             events: Vec::new(),
+            stall: None,
             stats: CliSimStats::default(),
             faults,
         }
@@ -129,8 +137,23 @@ impl CliSimCore {
         &self.stats
     }
 
-    /// Bytes from the host.
+    /// A stall the link owes since the last call (the `stall_*` faults): the shell holds every
+    /// byte, both ways, for that long.
+    pub fn take_stall(&mut self) -> Option<Duration> {
+        self.stall.take()
+    }
+
+    /// Bytes from the host (one read of the link).
     pub fn feed(&mut self, bytes: &[u8]) {
+        let lines = self.stats.lines;
+        self.feed_lines(bytes);
+        if self.stats.lines > lines && self.roll(self.faults.stall_probability) {
+            self.stats.stalls += 1;
+            self.stall = Some(Duration::from_millis(self.faults.stall_ms));
+        }
+    }
+
+    fn feed_lines(&mut self, bytes: &[u8]) {
         for &b in bytes {
             let cr = b == b'\r';
             if b == b'\n' && self.last_was_cr {
@@ -347,6 +370,13 @@ impl CliSimulator {
                         for e in core.take_events() {
                             on_event(e);
                         }
+                        if let Some(stall) = core.take_stall() {
+                            let until = std::time::Instant::now() + stall;
+                            while std::time::Instant::now() < until && !stop.load(Ordering::Relaxed)
+                            {
+                                std::thread::sleep(Duration::from_millis(10));
+                            }
+                        }
                         if let Ok(mut s) = stats.lock() {
                             *s = core.stats().clone();
                         }
@@ -393,6 +423,30 @@ mod tests {
     fn reply(core: &mut CliSimCore, line: &str) -> String {
         core.feed(format!("{line}\n").as_bytes());
         String::from_utf8(core.take_output()).unwrap()
+    }
+
+    #[test]
+    fn a_stall_is_owed_after_the_lines_it_rolled_for_and_counted() {
+        let faults = CliFaults {
+            seed: 11,
+            stall_probability: 0.5,
+            stall_ms: 300,
+            ..CliFaults::default()
+        };
+        let mut core = CliSimCore::new(UnknownReply::Error50, faults);
+        let mut owed = 0;
+        for _ in 0..40 {
+            reply(&mut core, "");
+            if let Some(stall) = core.take_stall() {
+                assert_eq!(stall, Duration::from_millis(300));
+                owed += 1;
+            }
+        }
+        assert_eq!(owed, core.stats().stalls);
+        assert!((10..=30).contains(&owed), "{owed} of 40 at p = 0.5");
+        assert_eq!(core.take_stall(), None);
+        // The reply is still whole: the shell holds it, the core does not change it.
+        assert_eq!(reply(&mut core, ""), "\nmmwDemo:/>");
     }
 
     #[test]

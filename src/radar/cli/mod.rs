@@ -16,4 +16,6 @@ pub mod reply;
 pub mod session;
 
 pub use reply::{LineKind, PromptKind, ReplyEvent, ReplyParser, error_meaning};
-pub use session::{Accepted, CliError, CliSession, CommandOutcome, SessionConfig};
+pub use session::{
+    Accepted, CliError, CliSession, CommandOutcome, DEFAULT_RESYNC_ATTEMPTS, SessionConfig,
+};

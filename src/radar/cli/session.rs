@@ -31,12 +31,17 @@ pub struct SessionConfig {
     pub resync_interval: Duration,
 }
 
+/// Bare newlines sent before a silent radar is given up: 50 at 200 ms is 10 s. A loaded host can
+/// hold a TTY's bytes in the kernel for seconds (its receive path runs on a kernel worker); 4.5 s
+/// was measured on a 2-core machine with every core busy, so 2 s was too short.
+pub const DEFAULT_RESYNC_ATTEMPTS: u32 = 50;
+
 impl Default for SessionConfig {
     fn default() -> Self {
         Self {
             command_timeout: Duration::from_secs(1),
             retries: 3,
-            resync_attempts: 10,
+            resync_attempts: DEFAULT_RESYNC_ATTEMPTS,
             resync_interval: Duration::from_millis(200),
         }
     }
@@ -46,9 +51,9 @@ impl Default for SessionConfig {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CliError {
     #[error(
-        "no prompt from the radar after {attempts} newlines (is the CLI firmware flashed, the port the CLI one, the board powered?)"
+        "no prompt from the radar after {attempts} newlines over {waited_ms} ms (is the CLI firmware flashed, the port the CLI one, the board powered?)"
     )]
-    NoPrompt { attempts: u32 },
+    NoPrompt { attempts: u32, waited_ms: u64 },
     #[error("`{command}`: no reply after {attempts} attempts of {timeout_ms} ms each")]
     Timeout {
         command: String,
@@ -337,7 +342,12 @@ impl CliSession {
         match self.state {
             State::Resync { attempts } => {
                 if attempts >= self.config.resync_attempts {
-                    self.fail(CliError::NoPrompt { attempts });
+                    let waited_ms =
+                        self.config.resync_interval.as_millis() as u64 * u64::from(attempts);
+                    self.fail(CliError::NoPrompt {
+                        attempts,
+                        waited_ms,
+                    });
                 } else {
                     self.resync(attempts, now);
                 }
@@ -457,14 +467,33 @@ mod tests {
     #[test]
     fn no_prompt_at_all_fails_after_the_resync_attempts() {
         let (mut s, mut t) = start(&["flushCfg"]);
-        for _ in 0..20 {
+        for _ in 0..60 {
             t += Duration::from_millis(201);
             s.handle_timeout(t);
         }
         assert_eq!(
             s.result().unwrap().unwrap_err(),
-            &CliError::NoPrompt { attempts: 10 }
+            &CliError::NoPrompt {
+                attempts: 50,
+                waited_ms: 10_000
+            }
         );
+    }
+
+    #[test]
+    fn a_prompt_held_up_for_4_5_s_by_the_host_is_waited_for() {
+        let (mut s, mut t) = start(&["flushCfg"]);
+        for _ in 0..22 {
+            t += Duration::from_millis(205);
+            s.handle_timeout(t);
+        }
+        assert!(!s.is_finished(), "still resynchronising after 4.5 s");
+        // The stall ends: every newline's prompt arrives at once, then the command's reply.
+        s.handle_input("\nmmwDemo:/>".repeat(23).as_bytes(), t);
+        assert_eq!(sent(&mut s).last().map(String::as_str), Some("flushCfg\n"));
+        s.handle_input(b"flushCfg\nDone\n\rmmwDemo:/>", t);
+        let outcomes = s.result().unwrap().unwrap();
+        assert_eq!((outcomes.len(), outcomes[0].attempts), (1, 1));
     }
 
     #[test]
