@@ -12,9 +12,9 @@ use mmnormd::dca1000::udp::UdpBoard;
 use mmnormd::lab::LabConfig;
 use mmnormd::lab::raw::{RawCapture, RawError, RawReport, capture_raw};
 use mmnormd::lab::simchain::{SimChain, load_source};
-use mmnormd::radar::cli::Accepted;
+use mmnormd::radar::cli::{Accepted, CommandOutcome};
 use mmnormd::radar::control::open_serial;
-use mmnormd::radar::sim::CliFaults;
+use mmnormd::radar::sim::{CliFaults, CliSimStats};
 use mmnormd::radar::{CliRadar, RadarControl, RadarProfile};
 
 fn lab() -> LabConfig {
@@ -137,16 +137,11 @@ fn a_raster_row_is_configured_captured_and_recovered_bit_exactly() {
     assert_eq!(cli.sensor_starts, 1);
 }
 
-#[test]
-fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
+/// Configures and starts the simulated radar with `faults` over its PTY: the outcomes, the
+/// simulator's counters and the seconds it took.
+fn configure_and_start(faults: CliFaults) -> (Vec<CommandOutcome>, CliSimStats, f64) {
     let mut config = lab();
-    config.sim.cli_faults = CliFaults {
-        seed: 7,
-        powerup_garbage_bytes: 64,
-        garble_echo_probability: 0.2,
-        drop_reply_probability: 0.2,
-        ..CliFaults::default()
-    };
+    config.sim.cli_faults = faults;
     let b = bench(config);
     let profile = profile(&b.lab);
     let port = open_serial(&b.lab.radar).unwrap();
@@ -154,7 +149,23 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
     let started = std::time::Instant::now();
     let outcomes = radar.configure(&profile).unwrap();
     radar.start().unwrap();
-    let cli = b.chain.radar.stats();
+    let seconds = started.elapsed().as_secs_f64();
+    (outcomes, b.chain.radar.stats(), seconds)
+}
+
+fn configure_commands_len() -> usize {
+    mmnormd::radar::control::configure_commands(&profile(&lab())).len()
+}
+
+#[test]
+fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
+    let (outcomes, cli, seconds) = configure_and_start(CliFaults {
+        seed: 7,
+        powerup_garbage_bytes: 64,
+        garble_echo_probability: 0.2,
+        drop_reply_probability: 0.2,
+        ..CliFaults::default()
+    });
     let retries: u32 = outcomes.iter().map(|o| o.attempts - 1).sum();
     let garbled: u32 = outcomes.iter().map(|o| o.garbled_echoes).sum();
     println!(
@@ -165,16 +176,13 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
         outcomes.len(),
         retries,
         outcomes.iter().map(|o| o.attempts).max().unwrap_or(0),
-        started.elapsed().as_secs_f64()
+        seconds
     );
     assert!(
         cli.dropped_replies >= 1 && cli.garbled_echoes >= 1,
         "the faults fired"
     );
-    assert_eq!(
-        outcomes.len(),
-        mmnormd::radar::control::configure_commands(&profile).len()
-    );
+    assert_eq!(outcomes.len(), configure_commands_len());
     assert!(
         outcomes
             .iter()
@@ -185,34 +193,22 @@ fn serial_garbage_garbled_echoes_and_dropped_replies_are_survived() {
 
 #[test]
 fn a_link_that_stalls_for_4_5_s_is_waited_out() {
-    let mut config = lab();
-    config.sim.cli_faults = CliFaults {
+    let (outcomes, cli, seconds) = configure_and_start(CliFaults {
         seed: 1,
         stall_probability: 0.1,
         stall_ms: 4500,
         ..CliFaults::default()
-    };
-    let b = bench(config);
-    let profile = profile(&b.lab);
-    let port = open_serial(&b.lab.radar).unwrap();
-    let mut radar = CliRadar::new(port, b.lab.radar.session_config());
-    let started = std::time::Instant::now();
-    let outcomes = radar.configure(&profile).unwrap();
-    radar.start().unwrap();
-    let cli = b.chain.radar.stats();
+    });
     println!(
-        "CLI link stalls: {} of {} lines held 4.5 s; {} commands done, {} retries, in {:.1} s",
+        "CLI link stalls: {} of 4.5 s over {} lines; {} commands done, {} retries, in {:.1} s",
         cli.stalls,
         cli.lines,
         outcomes.len(),
         outcomes.iter().map(|o| o.attempts - 1).sum::<u32>(),
-        started.elapsed().as_secs_f64()
+        seconds
     );
     assert!(cli.stalls >= 1, "the fault fired");
-    assert_eq!(
-        outcomes.len(),
-        mmnormd::radar::control::configure_commands(&profile).len()
-    );
+    assert_eq!(outcomes.len(), configure_commands_len());
     assert!(outcomes.iter().all(|o| o.accepted == Accepted::Done));
     assert_eq!(cli.sensor_starts, 1);
 }
