@@ -164,6 +164,26 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
         report_only: true,
         ..opts
     };
+    // Pointed at a work directory without results, it refuses and writes nothing: an empty
+    // report must not replace the one it was meant to redo.
+    let empty = BenchOptions {
+        work_dir: Some(out.path().join("no-work")),
+        ..report_only.clone()
+    };
+    let csv_before = std::fs::read(out.path().join("results.csv")).expect("results.csv");
+    let refused = run_suite(&suite, out.path(), &empty)
+        .err()
+        .map(|e| e.to_string());
+    assert!(
+        refused
+            .as_deref()
+            .is_some_and(|e| e.contains("no case of the suite has finished")),
+        "{refused:?}"
+    );
+    assert_eq!(
+        std::fs::read(out.path().join("results.csv")).expect("results.csv"),
+        csv_before
+    );
     let reported = run_suite(&suite, &elsewhere, &report_only).expect("report only");
     assert_eq!(reported.results.len(), 4);
     assert!(elsewhere.join("report.md").is_file() && elsewhere.join("results.csv").is_file());

@@ -53,6 +53,10 @@ pub enum BenchError {
     },
     #[error("result file: {0}")]
     Json(#[from] serde_json::Error),
+    #[error(
+        "--report-only: no case of the suite has finished under {work} (pass the run's --work); nothing was written"
+    )]
+    NothingFinished { work: PathBuf },
 }
 
 /// The median of timed repeats (the upper one of an even count); NaN for none.
@@ -83,6 +87,7 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BenchError + '_ {
 }
 
 /// How to run a suite.
+#[derive(Debug, Clone)]
 pub struct BenchOptions {
     /// The capture cache (`captures/`) and the per-case runs (`runs/`) [default: `OUT/work`].
     pub work_dir: Option<PathBuf>,
@@ -144,6 +149,10 @@ pub fn run_suite(
             Ok(r) => results.push(r),
             Err(e) => failed_cases.push((case.id.clone(), e)),
         }
+    }
+    if opts.report_only && results.is_empty() {
+        // An empty report would overwrite the results of the run it was meant to describe.
+        return Err(BenchError::NothingFinished { work });
     }
     let wall_s = started.elapsed().as_secs_f64();
     let notes = match &opts.notes {
