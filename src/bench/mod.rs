@@ -131,8 +131,6 @@ pub fn run_suite(
         memory_budget_bytes: opts.memory_budget_bytes,
         quiet: opts.quiet,
     };
-    std::fs::create_dir_all(&run_opts.runs_dir).map_err(io(&run_opts.runs_dir))?;
-    std::fs::create_dir_all(out).map_err(io(out))?;
     let outcomes = if opts.report_only {
         suite
             .cases
@@ -140,6 +138,8 @@ pub fn run_suite(
             .map(|c| run::finished_result(c, &run_opts).ok_or_else(|| "not run yet".to_string()))
             .collect()
     } else {
+        std::fs::create_dir_all(&run_opts.runs_dir).map_err(io(&run_opts.runs_dir))?;
+        std::fs::create_dir_all(out).map_err(io(out))?;
         run::run_cases(&suite.cases, &run_opts)
     };
     let mut results = Vec::new();
@@ -154,6 +154,7 @@ pub fn run_suite(
         // An empty report would overwrite the results of the run it was meant to describe.
         return Err(BenchError::NothingFinished { work });
     }
+    std::fs::create_dir_all(out).map_err(io(out))?;
     let wall_s = started.elapsed().as_secs_f64();
     let notes = match &opts.notes {
         Some(p) => Some((

@@ -145,15 +145,15 @@ impl CliSimCore {
 
     /// Bytes from the host (one read of the link).
     pub fn feed(&mut self, bytes: &[u8]) {
-        let lines = self.stats.lines;
-        self.feed_lines(bytes);
-        if self.stats.lines > lines && self.roll(self.faults.stall_probability) {
+        if self.feed_lines(bytes) > 0 && self.roll(self.faults.stall_probability) {
             self.stats.stalls += 1;
             self.stall = Some(Duration::from_millis(self.faults.stall_ms));
         }
     }
 
-    fn feed_lines(&mut self, bytes: &[u8]) {
+    /// Feeds bytes; returns how many lines they completed.
+    fn feed_lines(&mut self, bytes: &[u8]) -> usize {
+        let mut lines = 0;
         for &b in bytes {
             let cr = b == b'\r';
             if b == b'\n' && self.last_was_cr {
@@ -164,10 +164,12 @@ impl CliSimCore {
             if b == b'\n' || cr {
                 let line = String::from_utf8_lossy(&std::mem::take(&mut self.input)).into_owned();
                 self.line(&line);
+                lines += 1;
             } else if self.input.len() < 1024 {
                 self.input.push(b);
             }
         }
+        lines
     }
 
     fn roll(&mut self, p: f64) -> bool {
