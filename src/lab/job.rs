@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use super::config::LabConfig;
@@ -255,6 +255,29 @@ pub struct LiveJob<'a> {
     pub quiet: bool,
 }
 
+/// Finishes the recording of a scan that ended in `e`, or says why it could not be written.
+fn end_recording<W: std::io::Write + std::io::Seek>(
+    recorder: &mut McapRecorder<W>,
+    epoch: Instant,
+    e: ScanError,
+) -> JobError {
+    if let Some(at) = recorder.failed_at() {
+        // The scan stopped because the recording failed: say why and how fast.
+        return JobError::Record(format!(
+            "{}{}; the scan stopped {:.1} ms after the first failed write",
+            recorder.failure().unwrap_or("write failed"),
+            e.row().map(|r| format!(" (row {r})")).unwrap_or_default(),
+            at.elapsed().as_secs_f64() * 1e3
+        ));
+    }
+    // Keep what was recorded: say why it ended and finish the file.
+    let host_s = epoch.elapsed().as_secs_f64();
+    if recorder.log(host_s, 4, &format!("scan ended: {e}")).is_ok() {
+        recorder.finish().ok();
+    }
+    e.into()
+}
+
 /// Scans, records, reconstructs and scores. The recording is finished on every path it can
 /// be; a recorder that failed aborts the scan.
 pub fn run_live(
@@ -326,21 +349,13 @@ pub fn run_live(
     let scan = match scanned {
         Ok(s) => s,
         Err(e) => {
-            if let Some(at) = recorder.failed_at() {
-                // The scan stopped because the recording failed: say why and how fast.
-                return Err(JobError::Record(format!(
-                    "{}{}; the scan stopped {:.1} ms after the first failed write",
-                    recorder.failure().unwrap_or("write failed"),
-                    e.row().map(|r| format!(" (row {r})")).unwrap_or_default(),
-                    at.elapsed().as_secs_f64() * 1e3
-                )));
+            let error = end_recording(&mut recorder, epoch, e);
+            if abort.load(Ordering::Relaxed)
+                && let Err(e) = devices.radar.stop()
+            {
+                tracing::warn!("radar: sensorStop after the abort: {e}");
             }
-            // Keep what was recorded: say why it ended and finish the file.
-            let host_s = epoch.elapsed().as_secs_f64();
-            if recorder.log(host_s, 4, &format!("scan ended: {e}")).is_ok() {
-                recorder.finish().ok();
-            }
-            return Err(e.into());
+            return Err(error);
         }
     };
     let scan_s = scan.elapsed_s;

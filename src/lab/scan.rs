@@ -300,7 +300,8 @@ pub struct ScanResult {
     pub elapsed_s: f64,
 }
 
-/// Runs the scan.
+/// Runs the scan. After an abort the radar may still be sending: the caller stops it once it
+/// has finished what it records, so that a slow `sensorStop` cannot hold up the file.
 pub fn run_scan(
     lab: &LabConfig,
     setup: &ScanSetup,
@@ -419,7 +420,13 @@ impl RecordSink for RowSink<'_, '_> {
 
     fn finished(&mut self) -> bool {
         self.drain_samples();
-        if self.abort.load(Ordering::Relaxed) || self.log_error.is_some() {
+        if self.abort.load(Ordering::Relaxed) {
+            // The scan is over: the arm stops, and the radar is stopped by the caller once it
+            // has finished the recording (`sensorStop` may wait seconds on a stalled link).
+            self.row_abort.store(true, Ordering::Relaxed);
+            return true;
+        }
+        if self.log_error.is_some() {
             self.row_abort.store(true, Ordering::Relaxed);
         }
         if self.radar_stop.is_none()
@@ -556,12 +563,19 @@ fn record_row(
         (recorded, driven)
     });
     sink.drain_samples();
+    if let Some(e) = sink.log_error.take() {
+        if sink.radar_stop.is_none() {
+            sink.radar.stop().ok();
+        }
+        return Err(ScanError::Log(e));
+    }
+    if abort.load(Ordering::Relaxed) {
+        // Left running for the caller to stop after the recording is finished.
+        return Err(ScanError::Aborted { row: index });
+    }
     if sink.radar_stop.is_none() {
         // The recording ended without the row finishing: make sure the radar is stopped.
         sink.radar_stop = Some(sink.radar.stop().map_err(|e| e.to_string()));
-    }
-    if let Some(e) = sink.log_error.take() {
-        return Err(ScanError::Log(e));
     }
     let mut report = recorded.map_err(|source| ScanError::Board { row: index, source })?;
     let record = match driven {
