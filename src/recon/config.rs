@@ -238,8 +238,12 @@ pub struct ReconConfig {
     /// A mask attempt is accepted when its oriented bounding box is at most this volume, m³
     /// (authors: 0.03).
     pub max_mask_box_m3: f64,
-    /// Smallest component kept, m³ (authors: 3 cm × 3 cm × 4 cm), and the fallback used when no
-    /// component reaches it (1.5 × 1.5 × 2 cm).
+    /// Smallest component kept, m³: 1.5 cm × 1.5 cm × 2 cm = 4.5 cm³. The authors keep 3 × 3 × 4
+    /// cm (3.6e-5 m³) and fall back to 1.5 × 1.5 × 2 cm only when nothing reaches that; the paper
+    /// names no floor. Their floor drops whole parts of thin objects: at the paper's aperture a
+    /// screwdriver's shaft formed a 34.6 cm³ component of its own and was lost (F 0.77; 0.97 with
+    /// it kept; `docs/bench/analysis.md`). `fallback_component_m3` is used when no component
+    /// reaches `min_component_m3` (it matters only when that is set above it).
     pub min_component_m3: f64,
     pub fallback_component_m3: f64,
     pub integration: Integration,
@@ -294,7 +298,7 @@ impl Default for ReconConfig {
             li_max_iterations: 1000,
             li_voxels: LiVoxels::All,
             max_mask_box_m3: 0.03,
-            min_component_m3: 3.6e-5,
+            min_component_m3: 4.5e-6,
             fallback_component_m3: 4.5e-6,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
