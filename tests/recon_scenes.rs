@@ -290,17 +290,17 @@ fn a_thin_rod_beside_a_plate_is_kept() {
         authors.summary.components
     );
     let rod_voxels = s.components.iter().map(|c| c.voxels).min().unwrap_or(0);
-    let authors_voxels = (3.6e-5 / 0.002f64.powi(3)).round() as usize;
+    let authors_voxels =
+        (authors_floor.min_component_m3 / authors_floor.voxel_m.powi(3)).round() as usize;
     assert!(
         rod_voxels < authors_voxels,
         "the rod's component ({rod_voxels} voxels) reaches the authors' floor: the scene no longer tests it"
     );
     assert_eq!(authors.summary.components.len(), 1);
-    let rod_truth = case.truth.iter().filter(|p| p[0] > 0.0).count();
-    let recall_on_rod = |recon: &Reconstruction| {
-        let rod: Vec<[f64; 3]> = case.truth.iter().filter(|p| p[0] > 0.0).copied().collect();
-        evaluate(&recon.points_m, None, &rod, None, 0.015).recall
-    };
+    let rod: Vec<[f64; 3]> = case.truth.iter().filter(|p| p[0] > 0.0).copied().collect();
+    let rod_truth = rod.len();
+    let recall_on_rod =
+        |recon: &Reconstruction| evaluate(&recon.points_m, None, &rod, None, 0.015).recall;
     let (kept, dropped) = (recall_on_rod(&case.recon), recall_on_rod(&authors));
     println!(
         "rod: {rod_truth} truth points, recall {kept:.3} kept, {dropped:.3} with the authors' floor"
