@@ -1,5 +1,6 @@
 //! The forward simulator against closed forms: a point target, a plate (image theory and the
-//! specular cone), a sphere (geometric optics), shadowing, the cardboard sheet and seeding.
+//! specular cone), a sphere (geometric optics), shadowing, the cardboard sheet, the noise floor
+//! and seeding.
 
 use std::f64::consts::TAU;
 use std::path::Path;
@@ -249,6 +250,39 @@ fn cardboard_attenuates_both_ways_and_reflects_weakly() {
     );
     assert!((ratio / expected - 1.0).abs() < 0.01);
     assert!(sheet_echo > 10.0 * sheet_in_open);
+}
+
+#[test]
+fn the_noise_floor_is_the_receivers_and_does_not_rise_with_the_sheet() {
+    let aperture = "[aperture]\nwidth_m = 0.02\nheight_m = 0.02\nspacing_m = 0.005\nz_m = 0.4\n";
+    let target = "[[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = 0.01\n";
+    let sheet =
+        "[occluder]\nz_m = 0.2\nthickness_m = 0.004\nrefractive_index = 1.6\nloss_db = 1.5\n";
+    let noise = "[noise]\nsnr_db = 20.0\nseed = 3\n";
+    let open = simulate(&scene(&format!("{aperture}{noise}{target}")), true);
+    let covered = simulate(&scene(&format!("{aperture}{noise}{sheet}{target}")), true);
+    let clean = simulate(&scene(&format!("{aperture}{sheet}{target}")), true);
+    let power =
+        |s: &[Complex32]| s.iter().map(|z| f64::from(z.norm_sqr())).sum::<f64>() / s.len() as f64;
+    // The sheet's echo outweighs the target's many times: a floor set against the whole
+    // capture's power would rise with it.
+    let whole_over_target = power(&clean.capture.samples) / power(&open.capture.samples);
+    // The noise actually added, against the floor the open scene reports.
+    let added: Vec<Complex32> = covered
+        .capture
+        .samples
+        .iter()
+        .zip(clean.capture.samples.iter())
+        .map(|(n, c)| n - c)
+        .collect();
+    let measured_sigma = power(&added).sqrt();
+    println!(
+        "noise σ: open {:.3e}, under the sheet {:.3e} (measured {measured_sigma:.3e}); whole capture / target power {whole_over_target:.1}",
+        open.stats.noise_sigma, covered.stats.noise_sigma
+    );
+    assert!(whole_over_target > 10.0);
+    assert!((covered.stats.noise_sigma / open.stats.noise_sigma - 1.0).abs() < 0.01);
+    assert!((measured_sigma / open.stats.noise_sigma - 1.0).abs() < 0.05);
 }
 
 #[test]

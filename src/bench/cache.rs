@@ -53,6 +53,11 @@ fn store(
 /// not reused.
 pub const SIMULATOR_REVISION: &str = "2026-11-23";
 
+/// Bumped whenever the output changes for scenes with a cardboard sheet alone, so that their
+/// captures are simulated again and the others are kept. Keyed only for those scenes.
+/// 2026-12-03: the noise floor no longer rises with the sheet's own reflection.
+pub const OCCLUDER_REVISION: &str = "2026-12-03";
+
 /// The cache key of a case's capture.
 pub fn capture_key(case: &Case) -> String {
     let mut h = sha2::Sha256::new();
@@ -61,6 +66,11 @@ pub fn capture_key(case: &Case) -> String {
     h.update(b"\n");
     h.update(SIMULATOR_REVISION.as_bytes());
     h.update(b"\n");
+    if case.scene.occluder.is_some() {
+        h.update(b"occluder ");
+        h.update(OCCLUDER_REVISION.as_bytes());
+        h.update(b"\n");
+    }
     h.update(case.keyed_text.as_bytes());
     hex(&h.finalize())[..32].to_string()
 }

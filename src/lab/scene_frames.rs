@@ -10,8 +10,9 @@
 //! Scale: one capture unit (see [`crate::capture`]) is `adc_counts_per_unit` ADC counts, fixed
 //! for the whole scan: `full_scale` over the largest |I| or |Q| of a render at the reference
 //! pose (the raster's centre), so amplitudes compare across frames and rows. Noise: complex
-//! Gaussian at the scene's SNR below the mean power of that reference render, from the
-//! scene's seed and a per-frame stream.
+//! Gaussian at the scene's SNR below the mean power of the objects' echoes in that reference
+//! render, as they would arrive without the cardboard
+//! ([`ForwardModel::noise_reference_power`]), from the scene's seed and a per-frame stream.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,7 +28,7 @@ use crate::align::pose::{apply, isometry_of_pose};
 use crate::dca1000::samples::FrameLayout;
 use crate::dca1000::sim::{FrameSource, StreamPlan};
 use crate::sim::ForwardModel;
-use crate::sim::forward::{RenderScratch, add_noise_to_chirp};
+use crate::sim::forward::{RenderScratch, Rendered, add_noise_to_chirp};
 use crate::ur::sim::PoseOracle;
 
 /// Frames rendered ahead of the board at most.
@@ -209,17 +210,21 @@ impl Renderer {
             scale: 1.0,
             noise_sigma: 0.0,
         };
-        let reference = this.render_clean(&this.config.reference_pose, &mut None);
+        let (reference, rendered) = this.render(&this.config.reference_pose, &mut None);
         let peak = reference
             .iter()
             .map(|c| c.re.abs().max(c.im.abs()))
             .fold(0.0f32, f32::max);
-        let power = reference
+        let count = reference.len().max(1) as f64;
+        let total_power = reference
             .iter()
             .map(|c| f64::from(c.norm_sqr()))
             .sum::<f64>()
-            / reference.len().max(1) as f64;
+            / count;
         if let Some((snr_db, _)) = this.config.noise {
+            let power = this
+                .model
+                .noise_reference_power(rendered.objects_energy / count, total_power);
             this.noise_sigma = (power / 10f64.powf(snr_db / 10.0) / 2.0).sqrt();
         }
         // The reference is the strongest view; keep 6 dB of headroom over it and the noise.
@@ -248,12 +253,21 @@ impl Renderer {
         tcp_pose: &[f64; 6],
         scratch: &mut Option<RenderScratch>,
     ) -> Vec<Complex32> {
+        self.render(tcp_pose, scratch).0
+    }
+
+    /// The noise-free chirps at a TCP pose, with what [`Rendered`] counts of them.
+    fn render(
+        &self,
+        tcp_pose: &[f64; 6],
+        scratch: &mut Option<RenderScratch>,
+    ) -> (Vec<Complex32>, Rendered) {
         let (tx, rxs) = self.antennas(tcp_pose);
         let t = self.config.layout.samples_per_chirp;
         let mut out = vec![Complex32::new(0.0, 0.0); rxs.len() * t];
         let scratch = scratch.get_or_insert_with(|| self.model.scratch(rxs.len()));
-        self.model.render_position(tx, &rxs, scratch, &mut out);
-        out
+        let rendered = self.model.render_position(tx, &rxs, scratch, &mut out);
+        (out, rendered)
     }
 
     /// Noise and quantisation of one frame; returns the bytes and the clipped words.

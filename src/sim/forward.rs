@@ -156,6 +156,31 @@ pub struct ForwardModel {
     pub truth_mesh: TriMesh,
 }
 
+/// What [`ForwardModel::render_position`] rendered besides the chirps.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Rendered {
+    /// Visible scatterer–antenna pairs that were summed.
+    pub contributions: u64,
+    /// Σ|s|² over the chirps' samples before the sheet's own reflection was added: the
+    /// objects' echoes alone (through the sheet where it lies between).
+    pub objects_energy: f64,
+}
+
+impl std::ops::Add for Rendered {
+    type Output = Rendered;
+    fn add(self, other: Rendered) -> Rendered {
+        Rendered {
+            contributions: self.contributions + other.contributions,
+            objects_energy: self.objects_energy + other.objects_energy,
+        }
+    }
+}
+
+/// Σ|s|² of a chirp, in f64.
+fn energy(chirp: &[Complex32]) -> f64 {
+    chirp.iter().map(|s| f64::from(s.norm_sqr())).sum()
+}
+
 /// Per-thread accumulators of [`ForwardModel::render_position`].
 pub struct RenderScratch {
     spec: Vec<ToneAccumulator>,
@@ -195,14 +220,14 @@ impl ForwardModel {
     }
 
     /// The noise-free chirps of one TX position and its receivers, written into `out`
-    /// (`rxs.len()` chirps of T samples, RX-minor). Returns the contributions summed.
+    /// (`rxs.len()` chirps of T samples, RX-minor), with what [`Rendered`] counts.
     pub fn render_position(
         &self,
         tx_m: [f64; 3],
         rxs_m: &[[f64; 3]],
         scratch: &mut RenderScratch,
         out: &mut [Complex32],
-    ) -> u64 {
+    ) -> Rendered {
         let ctx = Ctx {
             s: &self.scatterers,
             pattern: self.pattern,
@@ -222,18 +247,46 @@ impl ForwardModel {
         let rxs: Vec<[f32; 3]> = rxs_m.iter().map(|r| f32v(*r)).collect();
         let count = ctx.position(f32v(tx_m), &rxs, spec, other);
         let t = self.plan.samples_per_chirp;
+        let mut objects_energy = 0.0;
         for (k, chirp) in out.chunks_exact_mut(t).take(per).enumerate() {
             chirp.fill(Complex32::new(0.0, 0.0));
             spec[k].scale_by(&self.inv_wavelength);
             spec[k].add_into(chirp);
             other[k].add_into(chirp);
+            objects_energy += energy(chirp);
             if let Some(occ) = &self.occluder
                 && let Some((factors, path_m)) = occ.reflection(&self.plan, tx_m, rxs_m[k])
             {
                 add_sheet_reflection(&self.plan, self.range_offset_m, &factors, path_m, chirp);
             }
         }
-        count
+        Rendered {
+            contributions: count,
+            objects_energy,
+        }
+    }
+
+    /// The mean power per sample that the scene's SNR is measured against, from the mean
+    /// power of the objects' echoes as rendered (`objects_power`, the sheet's own reflection
+    /// left out) and of the whole render (`total_power`).
+    ///
+    /// Receiver noise is the receiver's, not the scene's: the same objects must meet the same
+    /// noise floor with the cardboard and without it. So the reference is the objects' echo
+    /// as it would arrive without the sheet: `objects_power` over the sheet's round-trip power
+    /// transmission at normal incidence (exact for paths at normal incidence; paths at θ
+    /// cross it with loss_db/cos θ_t per leg, 0.1 dB more at 30°). Neither the sheet's
+    /// reflection, often far stronger than the objects, nor its loss moves the floor. A scene
+    /// whose objects return nothing falls back to `total_power`.
+    pub fn noise_reference_power(&self, objects_power: f64, total_power: f64) -> f64 {
+        if objects_power > 0.0 {
+            let transmission = self
+                .occluder
+                .as_ref()
+                .map_or(1.0, Occluder::round_trip_power_transmission);
+            objects_power / transmission
+        } else {
+            total_power
+        }
     }
 
     /// Scatterer counts for [`SimStats`].
@@ -255,28 +308,36 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
     let mut samples = vec![Complex32::new(0.0, 0.0); n * t];
     let progress = Progress::new("simulate", n as u64, quiet);
     let per = antennas.per_position.max(1);
-    let contributions: u64 = samples
+    let rendered = samples
         .par_chunks_mut(t * per)
         .enumerate()
         .map_init(
             || model.scratch(per),
             |scratch, (position, out)| {
                 let first = position * per;
-                let count = model.render_position(
+                let rendered = model.render_position(
                     antennas.tx_m[first],
                     &antennas.rx_m[first..first + per],
                     scratch,
                     out,
                 );
                 progress.inc(per as u64);
-                count
+                rendered
             },
         )
-        .sum();
+        .reduce(Rendered::default, |a, b| a + b);
     progress.finish();
 
     let noise_sigma = match scene.noise {
-        Some((snr_db, seed)) => add_noise(&mut samples, t, snr_db, seed),
+        Some((snr_db, seed)) => {
+            let count = samples.len().max(1) as f64;
+            let total_power = samples.par_chunks(t).map(energy).sum::<f64>() / count;
+            let reference =
+                model.noise_reference_power(rendered.objects_energy / count, total_power);
+            let sigma = (reference / 10f64.powf(snr_db / 10.0)).sqrt();
+            add_noise(&mut samples, t, sigma, seed);
+            sigma
+        }
         None => 0.0,
     };
     let (specular_samples, diffuse_samples, edge_samples, point_targets) = model.counts();
@@ -287,7 +348,7 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
         diffuse_samples,
         edge_samples,
         point_targets,
-        contributions,
+        contributions: rendered.contributions,
         noise_sigma,
         seconds: started.elapsed().as_secs_f64(),
     };
@@ -323,20 +384,14 @@ fn add_sheet_reflection(
     }
 }
 
-/// Adds complex Gaussian noise at `snr_db` below the mean sample power; returns σ per sample.
-fn add_noise(samples: &mut [Complex32], t: usize, snr_db: f64, seed: u64) -> f64 {
-    let power: f64 = samples
-        .par_iter()
-        .map(|s| f64::from(s.norm_sqr()))
-        .sum::<f64>()
-        / samples.len().max(1) as f64;
-    let sigma = (power / 10f64.powf(snr_db / 10.0)).sqrt();
+/// Adds complex Gaussian noise of σ per sample (σ/√2 on I and on Q), chirp i from the seeded
+/// stream i.
+fn add_noise(samples: &mut [Complex32], t: usize, sigma: f64, seed: u64) {
     let per_component = sigma / std::f64::consts::SQRT_2;
     samples
         .par_chunks_mut(t)
         .enumerate()
         .for_each(|(i, chirp)| add_noise_to_chirp(chirp, per_component, seed, i as u64));
-    sigma
 }
 
 /// Adds complex Gaussian noise of `per_component_sigma` on I and on Q to one chirp, from the

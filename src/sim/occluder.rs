@@ -26,6 +26,12 @@ impl Occluder {
         }
     }
 
+    /// The power that a round trip through the sheet at normal incidence keeps: `loss_db` on
+    /// each leg.
+    pub fn round_trip_power_transmission(&self) -> f64 {
+        10f64.powf(-2.0 * self.loss_db / 10.0)
+    }
+
     /// Amplitude factor and extra path (metres) of the straight leg from `p` to `a`; (1, 0)
     /// when the leg does not cross the sheet.
     #[inline]
