@@ -545,6 +545,7 @@ fn build_case(
             recon.occluder = scene.occluder.map(|o| KnownOccluder {
                 thickness_m: o.thickness_m,
                 refractive_index: o.refractive_index,
+                remove_echo: true,
             });
         }
     }

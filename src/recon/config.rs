@@ -272,6 +272,16 @@ pub struct ReconConfig {
 pub struct KnownOccluder {
     pub thickness_m: f64,
     pub refractive_index: f64,
+    /// Subtract the echoes that peak nearer than the imaged box (the sheet's own) from every
+    /// chirp before imaging ([`super::near_echo::without_near_echoes`]), so that their range
+    /// sidelobes do not enter S(v). The isosurface cost keeps the raw chirps and projects the
+    /// echoes out itself. On by default.
+    #[serde(default = "yes")]
+    pub remove_echo: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 impl KnownOccluder {

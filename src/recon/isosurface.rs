@@ -65,11 +65,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::config::Optimisation;
-use super::image::box_round_trip_m;
-use super::near_echo::{NearEchoCanceller, NearEchoSubspace};
+use super::near_echo::{NearEchoCanceller, NearEchoSubspace, box_window};
 use super::subset::{PerComponentShares, Subset, SubsetInputs, choose};
 use super::trace::{RaySamples, SampledField};
-use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
 use crate::geometry::vec3::{add, dot, scale, sub};
 use crate::progress::Progress;
@@ -315,16 +313,8 @@ pub fn simulate_candidates(
     );
     let fft_len = canceller.fft_len();
     let (lo, hi) = union_box(fields);
-    let bins_per_m = capture.plan.frequency_step_hz * fft_len as f64 / SPEED_OF_LIGHT_M_PER_S;
     let pad = opts.cost_pad_factor as i64;
-    let window_of = |a: usize| {
-        let (near, far) = box_round_trip_m(&capture.tx_m[a], &capture.rx_m[a], lo, hi);
-        let b0 = (near + capture.range_offset_m) * bins_per_m;
-        let b1 = (far + capture.range_offset_m) * bins_per_m;
-        let first = b0.min(b1).floor() as i64 - pad;
-        let last = b0.max(b1).ceil() as i64 + pad;
-        (first, (last - first + 1) as usize)
-    };
+    let window_of = |a: usize| box_window(capture, a, lo, hi, fft_len, pad);
     let measured = |a: usize| {
         let (first, len) = window_of(a);
         let (window, removed) = canceller.clean(capture.chirp(a), first, len);

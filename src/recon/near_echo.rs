@@ -48,7 +48,59 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix3, Vector3};
 use num_complex::{Complex32, Complex64};
+use rayon::prelude::*;
 use rustfft::{Fft, FftPlanner};
+
+use super::image::box_round_trip_m;
+use crate::SPEED_OF_LIGHT_M_PER_S;
+use crate::capture::Capture;
+
+/// Antenna `a`'s range window over the box `lo..hi`: the first padded bin and the length of the
+/// bins its round trips can reach, widened by `pad_bins` on each side, in a padded spectrum of
+/// `fft_len` bins.
+pub fn box_window(
+    capture: &Capture,
+    a: usize,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    fft_len: usize,
+    pad_bins: i64,
+) -> (i64, usize) {
+    let bins_per_m = capture.plan.frequency_step_hz * fft_len as f64 / SPEED_OF_LIGHT_M_PER_S;
+    let (near, far) = box_round_trip_m(&capture.tx_m[a], &capture.rx_m[a], lo, hi);
+    let b0 = (near + capture.range_offset_m) * bins_per_m;
+    let b1 = (far + capture.range_offset_m) * bins_per_m;
+    let first = b0.min(b1).floor() as i64 - pad_bins;
+    let last = b0.max(b1).ceil() as i64 + pad_bins;
+    (first, (last - first + 1) as usize)
+}
+
+/// `capture` with every chirp's echoes that peak nearer than the box `lo..hi` (its
+/// [`box_window`], `pad_bins` wide margins) subtracted by [`NearEchoCanceller::clean_chirp`],
+/// and how many antennas had any.
+pub fn without_near_echoes(
+    capture: &Capture,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    canceller: &NearEchoCanceller,
+    pad_bins: i64,
+) -> (Capture, usize) {
+    let t = capture.plan.samples_per_chirp;
+    let mut samples = vec![Complex32::new(0.0, 0.0); capture.samples.len()];
+    let cleaned: usize = samples
+        .par_chunks_mut(t)
+        .enumerate()
+        .map(|(a, out)| {
+            let (first, len) = box_window(capture, a, lo, hi, canceller.fft_len(), pad_bins);
+            let (chirp, removed) = canceller.clean_chirp(capture.chirp(a), first, len);
+            out[..chirp.len()].copy_from_slice(&chirp);
+            usize::from(removed > 0)
+        })
+        .sum();
+    let mut clean = capture.clone();
+    clean.samples = Arc::new(samples);
+    (clean, cleaned)
+}
 
 /// The near echoes of one chirp (see [`NearEchoCanceller::near_echoes`]).
 pub struct NearEchoes {
@@ -210,23 +262,41 @@ impl NearEchoCanceller {
         (found.cleaned, removed)
     }
 
+    /// `chirp` with the echoes that peak before bin `first` of its padded spectrum subtracted
+    /// (their least-squares models, fitted as for [`Self::clean`]), and how many were removed.
+    pub fn clean_chirp(
+        &self,
+        chirp: &[Complex32],
+        first: i64,
+        len: usize,
+    ) -> (Vec<Complex32>, usize) {
+        let (found, residual) = self.remove(chirp, first, len);
+        (residual, found.echoes())
+    }
+
     /// What [`Self::clean`] removes, in the form [`NearEchoSubspace`] needs: the chirp's padded
     /// spectrum over bins `0..first + len`, the basis spectra of every echo removed over the
     /// same bins, and the cleaned window.
     pub fn near_echoes(&self, chirp: &[Complex32], first: i64, len: usize) -> NearEchoes {
+        self.remove(chirp, first, len).0
+    }
+
+    /// [`Self::near_echoes`] and the chirp with the echoes' models subtracted.
+    fn remove(&self, chirp: &[Complex32], first: i64, len: usize) -> (NearEchoes, Vec<Complex32>) {
         let mut spectrum = self.spectrum(chirp);
         let before = first.clamp(0, self.fft_len as i64) as usize;
         let span = (first + len as i64).clamp(0, self.fft_len as i64) as usize;
         let measured = spectrum[..span].to_vec();
         let mut basis = Vec::new();
+        let mut residual: Vec<Complex32> = chirp[..chirp.len().min(self.samples)].to_vec();
         if self.tones == 0 || before < 2 {
-            return NearEchoes {
+            let found = NearEchoes {
                 measured,
                 basis,
                 cleaned: self.window(&spectrum, first, len),
             };
+            return (found, residual);
         }
-        let mut residual: Vec<Complex32> = chirp[..chirp.len().min(self.samples)].to_vec();
         let mut removed = 0;
         while removed < self.tones {
             let inside = self
@@ -257,11 +327,12 @@ impl NearEchoCanceller {
             }));
             removed += 1;
         }
-        NearEchoes {
+        let found = NearEchoes {
             measured,
             basis,
             cleaned: self.window(&spectrum, first, len),
-        }
+        };
+        (found, residual)
     }
 
     /// Fits e^{+j2πνt}·(a0 + a1·τ + a2·τ²), τ = t/N − ½, to the spectrum's bins below
