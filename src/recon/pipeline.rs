@@ -815,6 +815,16 @@ mod tests {
         assert!(used(&moved, Imaging::Rma).is_err());
     }
 
+    /// The capture of a point target of `rcs_m2` at the origin, under the `[radar]` and
+    /// `[aperture]` tables of `setup` and `sheet` (an `[occluder]` table, or nothing).
+    fn point_target_capture(setup: &str, sheet: &str, rcs_m2: f64) -> Capture {
+        let text = format!(
+            "{setup}{sheet}[[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = {rcs_m2:?}\n"
+        );
+        let scene = Scene::parse(&text, std::path::Path::new("inline.toml")).unwrap();
+        simulate(&scene, true).capture
+    }
+
     /// A weak point target 12 cm under an unbounded sheet, as in the accuracy suite's NLOS
     /// scenes. The sheet's echo is far stronger than the target's and lies 2.4 raw range bins
     /// nearer, so its range sidelobes spread over the whole imaged box. Removed before imaging,
@@ -822,13 +832,12 @@ mod tests {
     #[test]
     fn a_known_sheets_echo_is_kept_out_of_the_image() {
         let scene = |sheet: &str| {
-            let text = format!(
+            point_target_capture(
                 "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\nsamples_per_chirp = 512\n\
-                 [aperture]\nwidth_m = 0.06\nheight_m = 0.06\nspacing_m = 0.003\nz_m = 0.3\n{sheet}\
-                 [[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = 1e-4\n"
-            );
-            let scene = Scene::parse(&text, std::path::Path::new("inline.toml")).unwrap();
-            simulate(&scene, true).capture
+                 [aperture]\nwidth_m = 0.06\nheight_m = 0.06\nspacing_m = 0.003\nz_m = 0.3\n",
+                sheet,
+                1e-4,
+            )
         };
         let open = scene("");
         let covered = scene(
@@ -889,13 +898,12 @@ mod tests {
     #[test]
     fn a_known_sheet_moves_the_image_back_to_the_target() {
         let scene = |sheet: &str| {
-            let text = format!(
+            point_target_capture(
                 "[radar]\nstart_frequency_hz = 77e9\nfrequency_step_hz = 7.8125e6\nsamples_per_chirp = 512\n\
-                 [aperture]\nwidth_m = 0.03\nheight_m = 0.03\nspacing_m = 0.003\nz_m = 0.3\n{sheet}\
-                 [[object]]\nshape = \"point\"\nposition_m = [0.0, 0.0, 0.0]\nrcs_m2 = 1.0\n"
-            );
-            let scene = Scene::parse(&text, std::path::Path::new("inline.toml")).unwrap();
-            simulate(&scene, true).capture
+                 [aperture]\nwidth_m = 0.03\nheight_m = 0.03\nspacing_m = 0.003\nz_m = 0.3\n",
+                sheet,
+                1.0,
+            )
         };
         let open = scene("");
         let covered = scene(
