@@ -122,7 +122,8 @@ pub fn result_key(case: &Case, capture_key: &str, tau_m: f64) -> String {
 }
 
 /// A rough upper bound of one case's memory: the capture three times over (simulation,
-/// capture, range profiles) and the volume's per-voxel arrays.
+/// capture, range profiles), once more where a known sheet's echo is removed before imaging
+/// (the cleaned copy), and the volume's per-voxel arrays.
 pub fn memory_estimate_bytes(case: &Case) -> u64 {
     let a = &case.scene.aperture;
     let (columns, rows) = a.raster_size();
@@ -133,7 +134,11 @@ pub fn memory_estimate_bytes(case: &Case) -> u64 {
     let channels = columns as f64 * rows as f64 * per;
     let capture = channels * case.scene.plan.samples_per_chirp as f64 * 8.0;
     let voxels = 0.3f64.powi(3) / case.recon.voxel_m.powi(3);
-    (3.0 * capture + voxels.min(6.0e7) * 64.0) as u64
+    let copies = match case.recon.occluder {
+        Some(o) if o.remove_echo => 4.0,
+        _ => 3.0,
+    };
+    (copies * capture + voxels.min(6.0e7) * 64.0) as u64
 }
 
 /// A counting semaphore over bytes.

@@ -216,6 +216,8 @@ pub fn image_volume(
         grid.voxel_m * 1e3,
         grid.origin_m
     );
+    stages.lap("volume");
+    // Timed with the image it serves.
     let cleaned = match config.occluder {
         Some(o) if o.remove_echo => {
             let (lo, hi) = grid.extent();
@@ -238,7 +240,6 @@ pub fn image_volume(
     };
     let near_echo_antennas = cleaned.as_ref().map(|c| c.1);
     let capture = cleaned.as_ref().map_or(capture, |c| &c.0);
-    stages.lap("volume");
     let lattice = match config.imaging {
         Imaging::Backprojection => Err("imaging = \"backprojection\"".to_string()),
         Imaging::Rma => Ok(detect(capture, config.raster_tolerance)?),
