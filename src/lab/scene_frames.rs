@@ -12,7 +12,7 @@
 //! pose (the raster's centre), so amplitudes compare across frames and rows. Noise: complex
 //! Gaussian at the scene's SNR below the mean power of the objects' echoes in that reference
 //! render, as they would arrive without the cardboard
-//! ([`ForwardModel::noise_reference_power`]), from the scene's seed and a per-frame stream.
+//! ([`ForwardModel::noise_sigma`]), from the scene's seed and a per-frame stream.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -215,17 +215,9 @@ impl Renderer {
             .iter()
             .map(|c| c.re.abs().max(c.im.abs()))
             .fold(0.0f32, f32::max);
-        let count = reference.len().max(1) as f64;
-        let total_power = reference
-            .iter()
-            .map(|c| f64::from(c.norm_sqr()))
-            .sum::<f64>()
-            / count;
         if let Some((snr_db, _)) = this.config.noise {
-            let power = this
-                .model
-                .noise_reference_power(rendered.objects_energy / count, total_power);
-            this.noise_sigma = (power / 10f64.powf(snr_db / 10.0) / 2.0).sqrt();
+            this.noise_sigma =
+                this.model.noise_sigma(snr_db, &rendered, &reference) / std::f64::consts::SQRT_2;
         }
         // The reference is the strongest view; keep 6 dB of headroom over it and the noise.
         let headroom = 2.0 * (f64::from(peak) + 4.0 * this.noise_sigma);
@@ -246,14 +238,6 @@ impl Renderer {
                 .map(|rx| apply(&base_from_radar, rx))
                 .collect(),
         )
-    }
-
-    fn render_clean(
-        &self,
-        tcp_pose: &[f64; 6],
-        scratch: &mut Option<RenderScratch>,
-    ) -> Vec<Complex32> {
-        self.render(tcp_pose, scratch).0
     }
 
     /// The noise-free chirps at a TCP pose, with what [`Rendered`] counts of them.
@@ -353,7 +337,7 @@ impl Renderer {
                     || None,
                     |scratch, pose| match &last_clean {
                         Some((p, clean)) if p == pose => (clean.clone(), false),
-                        _ => (self.render_clean(pose, scratch), true),
+                        _ => (self.render(pose, scratch).0, true),
                     },
                 )
                 .collect();

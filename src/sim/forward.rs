@@ -266,27 +266,34 @@ impl ForwardModel {
         }
     }
 
-    /// The mean power per sample that the scene's SNR is measured against, from the mean
-    /// power of the objects' echoes as rendered (`objects_power`, the sheet's own reflection
-    /// left out) and of the whole render (`total_power`).
+    /// σ per sample of noise `snr_db` below the objects' echo in `samples`, which
+    /// [`Self::render_position`] rendered with `rendered`.
     ///
     /// Receiver noise is the receiver's, not the scene's: the same objects must meet the same
-    /// noise floor with the cardboard and without it. So the reference is the objects' echo
-    /// as it would arrive without the sheet: `objects_power` over the sheet's round-trip power
-    /// transmission at normal incidence (exact for paths at normal incidence; paths at θ
-    /// cross it with loss_db/cos θ_t per leg, 0.1 dB more at 30°). Neither the sheet's
-    /// reflection, often far stronger than the objects, nor its loss moves the floor. A scene
-    /// whose objects return nothing falls back to `total_power`.
-    pub fn noise_reference_power(&self, objects_power: f64, total_power: f64) -> f64 {
-        if objects_power > 0.0 {
+    /// noise floor with the cardboard and without it. So the reference is the objects' mean
+    /// echo power as it would arrive without the sheet: their power as rendered (the sheet's
+    /// own reflection left out) over the sheet's round-trip power transmission at normal
+    /// incidence (exact for paths at normal incidence; paths at θ cross it with
+    /// loss_db/cos θ_t per leg, 0.1 dB more at 30°). Neither the sheet's reflection, often far
+    /// stronger than the objects, nor its loss moves the floor. A scene whose objects return
+    /// nothing is referred to the mean power of `samples` instead.
+    pub fn noise_sigma(&self, snr_db: f64, rendered: &Rendered, samples: &[Complex32]) -> f64 {
+        let count = samples.len().max(1) as f64;
+        let objects_power = rendered.objects_energy / count;
+        let reference = if objects_power > 0.0 {
             let transmission = self
                 .occluder
                 .as_ref()
                 .map_or(1.0, Occluder::round_trip_power_transmission);
             objects_power / transmission
         } else {
-            total_power
-        }
+            samples
+                .par_iter()
+                .map(|s| f64::from(s.norm_sqr()))
+                .sum::<f64>()
+                / count
+        };
+        (reference / 10f64.powf(snr_db / 10.0)).sqrt()
     }
 
     /// Scatterer counts for [`SimStats`].
@@ -330,11 +337,7 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
 
     let noise_sigma = match scene.noise {
         Some((snr_db, seed)) => {
-            let count = samples.len().max(1) as f64;
-            let total_power = samples.par_chunks(t).map(energy).sum::<f64>() / count;
-            let reference =
-                model.noise_reference_power(rendered.objects_energy / count, total_power);
-            let sigma = (reference / 10f64.powf(snr_db / 10.0)).sqrt();
+            let sigma = model.noise_sigma(snr_db, &rendered, &samples);
             add_noise(&mut samples, t, sigma, seed);
             sigma
         }

@@ -283,7 +283,7 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
     pub occluder: Option<Occluder>,
     /// (SNR in dB, seed) when noise is added: the objects' mean echo power without the sheet
-    /// over the noise power per sample ([`super::ForwardModel::noise_reference_power`]).
+    /// over the noise power per sample ([`super::ForwardModel::noise_sigma`]).
     pub noise: Option<(f64, u64)>,
     /// Seed of the surface roughness phases (the noise seed, or 0).
     pub seed: u64,
