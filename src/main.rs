@@ -210,6 +210,9 @@ enum BenchCommand {
     /// Chirp synthesis (the simulator's inner sum): one chirp of R reflections swept directly
     /// and gridded, and the R from which gridding wins; medians of repeats on one thread.
     Tones(cli::bench::TonesArgs),
+    /// How much of each case's truth a specular method can see under each suite's aperture,
+    /// from the geometry alone: the F-score of the seen truth points (no simulation).
+    Coverage(cli::bench::CoverageArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -300,6 +303,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench {
             which: BenchCommand::Tones(a),
         } => cli::bench::tones(a),
+        Command::Bench {
+            which: BenchCommand::Coverage(a),
+        } => cli::bench::coverage(a, args.quiet),
         Command::Profile { cfg } => cli::profile::run(&cfg),
         Command::Demo(a) => cli::demo::run(&a, args.quiet),
         Command::Ctl(a) => cli::ctl::run(&a, args.quiet),

@@ -229,3 +229,49 @@ fn the_paper_suite_uses_every_shared_mesh_and_the_reduced_suite_the_same_scenes(
         assert_eq!(c.scene.occluder.is_some(), nlos, "{}", c.id);
     }
 }
+
+#[test]
+fn a_wider_aperture_sees_more_of_the_smoke_scenes_and_the_coverage_files_say_so() {
+    use mmnormd::bench::coverage::{coverage_csv, suite_coverage, write_coverage};
+    let path = suite_path("smoke.toml");
+    let text = std::fs::read_to_string(&path).expect("smoke.toml");
+    let small = Suite::parse(&text, &path).expect("smoke suite");
+    let wide_text = text.replace(
+        "width_m = 0.12\nheight_m = 0.12",
+        "width_m = 0.60\nheight_m = 0.45",
+    );
+    assert_ne!(wide_text, text, "the smoke suite's aperture lines moved");
+    let wide = Suite::parse(&wide_text, &path).expect("wide suite");
+    let (a, b) = (suite_coverage(&small, true), suite_coverage(&wide, true));
+    assert_eq!(a.cases.len(), 4);
+    for (x, y) in a.cases.iter().zip(&b.cases) {
+        assert_eq!(x.id, y.id);
+        assert!(
+            x.seen_fraction > 0.0 && x.seen_fraction < 1.0,
+            "{}: {}",
+            x.id,
+            x.seen_fraction
+        );
+        assert!(
+            y.seen_fraction > 1.5 * x.seen_fraction,
+            "{}: {} → {}",
+            x.id,
+            x.seen_fraction,
+            y.seen_fraction
+        );
+        assert!(y.ideal.f_score > x.ideal.f_score, "{}", x.id);
+        // The ideal's points are truth points: every one lies on the surface.
+        assert_eq!(x.ideal.precision, 1.0, "{}", x.id);
+    }
+    // The sheet does not enter the geometry: LOS and NLOS agree.
+    assert_eq!(a.cases[0].seen_fraction, a.cases[1].seen_fraction);
+    let csv = coverage_csv(&[a, b], &[]);
+    assert_eq!(csv.lines().count(), 5, "{csv}");
+    assert!(csv.starts_with("case,smoke_truth_points,smoke_seen_fraction,smoke_ideal_f_score"));
+    let out = tempfile::tempdir().expect("tempdir");
+    let small = suite_coverage(&small, true);
+    write_coverage(&[small], &[], out.path()).expect("write");
+    for f in ["coverage.csv", "coverage.md", "coverage_cdf.png"] {
+        assert!(out.path().join(f).is_file(), "{f}");
+    }
+}

@@ -8,10 +8,13 @@
 //! - [`report`]: `results.csv`, the CDF plots and `report.md` beside the paper's figures;
 //! - [`scene_png`]: one picture per case (Fig. 10 style);
 //! - [`perf`]: `mmnormd bench perf`, the full-scale speed benchmark;
+//! - [`coverage`]: `mmnormd bench coverage`, the F-score an ideal specular reconstruction
+//!   gets under each suite's aperture, from the geometry alone;
 //! - [`kernel`]: `mmnormd bench kernel`, the exact per-antenna kernel's throughput;
 //! - [`stream`]: `mmnormd bench stream`, the DCA1000 receive path's throughput.
 
 pub mod cache;
+pub mod coverage;
 pub mod kernel;
 pub mod perf;
 pub mod report;
@@ -50,6 +53,12 @@ pub enum BenchError {
         path: PathBuf,
         #[source]
         source: std::io::Error,
+    },
+    #[error("{path} line {line}: {what}")]
+    Results {
+        path: PathBuf,
+        line: usize,
+        what: String,
     },
     #[error("result file: {0}")]
     Json(#[from] serde_json::Error),

@@ -64,6 +64,35 @@ fn colour(method: &str) -> Rgb {
     }
 }
 
+/// `text` with the target of every inline Markdown link or image that is a relative path
+/// (written from the output directory) passed through `link`, so that the notes' links hold
+/// in a copy of the report written elsewhere. URLs, absolute paths and anchors are kept.
+pub fn relink(text: &str, link: &dyn Fn(&str) -> String) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find("](") {
+        let (head, tail) = rest.split_at(at + 2);
+        out.push_str(head);
+        let Some(end) = tail.find(')') else {
+            rest = tail;
+            break;
+        };
+        let target = &tail[..end];
+        let keep = target.is_empty()
+            || target.contains("://")
+            || target.starts_with(['/', '#'])
+            || target.starts_with("mailto:");
+        if keep {
+            out.push_str(target);
+        } else {
+            out.push_str(&link(target));
+        }
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    out
+}
+
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
@@ -494,7 +523,7 @@ cases only; the others are listed at the end. Running the same command again res
             md,
             "\n## Analysis\n\n_From `{file}`, written by hand for this run._\n"
         );
-        let _ = writeln!(md, "{}", text.trim_end());
+        let _ = writeln!(md, "{}", relink(text.trim_end(), link));
     }
     let _ = writeln!(md, "\n## Shape, position and point error (Fig. 12)\n");
     let _ = writeln!(
@@ -597,7 +626,7 @@ cases only; the others are listed at the end. Running the same command again res
         );
     }
     for text in &info.includes {
-        let _ = writeln!(md, "\n{}", text.trim_end());
+        let _ = writeln!(md, "\n{}", relink(text.trim_end(), link));
     }
     let _ = writeln!(md, "\n## Plots\n");
     for (name, caption) in plots {
@@ -660,4 +689,26 @@ wrong points (precision) or from surface the reconstruction does not reach (reca
 pub fn write_csv(results: &[CaseResult], dir: &Path) -> Result<(), BenchError> {
     write_atomically(&dir.join("results.csv"), results_csv(results).as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::relink;
+
+    #[test]
+    fn relative_links_are_relinked_and_the_others_kept() {
+        let text = "See [the paper rows](paper/report.md) and ![cdf](coverage/cdf.png), \
+                    [a site](https://example.org/x), [top](#plots), [root](/etc/x) and a (plain) ] (bracket).";
+        let out = relink(text, &|f| format!("docs/bench/{f}"));
+        assert_eq!(
+            out,
+            "See [the paper rows](docs/bench/paper/report.md) and ![cdf](docs/bench/coverage/cdf.png), \
+             [a site](https://example.org/x), [top](#plots), [root](/etc/x) and a (plain) ] (bracket)."
+        );
+        assert_eq!(relink(text, &|f| f.to_string()), text);
+        assert_eq!(
+            relink("[open](never closed", &|f| format!("x/{f}")),
+            "[open](never closed"
+        );
+    }
 }

@@ -31,11 +31,12 @@ pub struct AccuracyArgs {
     /// Run nothing; write the report from the cases already finished.
     #[arg(long)]
     report_only: bool,
-    /// Markdown with a hand-written analysis of the run, included in the report.
+    /// Markdown with a hand-written analysis of the run, included in the report. Its relative
+    /// links are taken from OUT and rewritten for the --markdown copy.
     #[arg(long)]
     notes: Option<PathBuf>,
-    /// Markdown included verbatim before the plots, such as `bench perf --markdown`'s section
-    /// (repeatable).
+    /// Markdown included before the plots, such as `bench perf --markdown`'s section
+    /// (repeatable); relative links as for --notes.
     #[arg(long)]
     include: Vec<PathBuf>,
 }
@@ -325,5 +326,50 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
     for (id, e) in &outcome.failed_cases {
         eprintln!("case {id} failed: {e}");
     }
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct CoverageArgs {
+    /// Suite file (TOML); repeat it to compare apertures (e.g. reduced.toml, then paper.toml).
+    /// The rows are the first suite's cases, matched by id in the others.
+    #[arg(long, required = true)]
+    suite: Vec<PathBuf>,
+    /// Output directory: coverage.csv, coverage.md and coverage_cdf.png.
+    #[arg(long)]
+    out: PathBuf,
+    /// A `bench accuracy` results.csv of the first suite: its mmNorm F-score and recall are
+    /// set beside the ideal.
+    #[arg(long)]
+    results: Option<PathBuf>,
+}
+
+pub fn coverage(a: CoverageArgs, quiet: bool) -> Result<()> {
+    use mmnormd::bench::coverage::{read_results, suite_coverage, write_coverage};
+    let suites = a
+        .suite
+        .iter()
+        .map(|p| Suite::load(p).map(|s| suite_coverage(&s, quiet)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let achieved = match &a.results {
+        Some(p) => read_results(p, "mmnorm")?,
+        None => Vec::new(),
+    };
+    write_coverage(&suites, &achieved, &a.out)?;
+    for s in &suites {
+        let f: Vec<f64> = s.cases.iter().map(|c| c.ideal.f_score).collect();
+        println!(
+            "{} ({}): {} cases, ideal F median {:.3}, 25th percentile {:.3}",
+            s.label,
+            s.aperture,
+            f.len(),
+            mmnormd::eval::quantile(&f, 0.5).unwrap_or(f64::NAN),
+            mmnormd::eval::quantile(&f, 0.25).unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "wrote {}: coverage.csv, coverage.md, coverage_cdf.png",
+        a.out.display()
+    );
     Ok(())
 }
