@@ -195,8 +195,44 @@ pub struct Achieved {
     pub recall: f64,
 }
 
+/// The records of CSV `text` (RFC 4180: quoted fields may hold commas, doubled quotes and
+/// line breaks), each with the line it starts on (from 1).
+fn csv_records(text: &str) -> Vec<(usize, Vec<String>)> {
+    let mut records = Vec::new();
+    let (mut fields, mut field) = (Vec::new(), String::new());
+    let (mut line, mut start, mut quoted) = (1, 1, false);
+    let mut chars = text.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (quoted, c) {
+            (true, '"') if chars.peek() == Some(&'"') => {
+                chars.next();
+                field.push('"');
+            }
+            (true, '"') => quoted = false,
+            (false, '"') if field.is_empty() => quoted = true,
+            (false, ',') => fields.push(std::mem::take(&mut field)),
+            (false, '\r') if chars.peek() == Some(&'\n') => {}
+            (false, '\n') => {
+                fields.push(std::mem::take(&mut field));
+                records.push((start, std::mem::take(&mut fields)));
+                line += 1;
+                start = line;
+            }
+            (_, c) => {
+                line += usize::from(c == '\n');
+                field.push(c);
+            }
+        }
+    }
+    if !field.is_empty() || !fields.is_empty() {
+        fields.push(field);
+        records.push((start, fields));
+    }
+    records
+}
+
 /// Reads the `method` rows of a `bench accuracy` results.csv, keyed by case id
-/// (`scene-pose-condition`).
+/// (`scene-pose-condition`). A failed method's empty recall reads as 0, as the report counts it.
 pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>, BenchError> {
     let text = std::fs::read_to_string(path).map_err(io(path))?;
     let bad = |line: usize, what: String| BenchError::Results {
@@ -204,12 +240,12 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
         line,
         what,
     };
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let mut records = csv_records(&text).into_iter();
+    let header = records.next().map(|(_, h)| h).unwrap_or_default();
     let col = |name: &str| {
         header
             .iter()
-            .position(|h| *h == name)
+            .position(|h| h == name)
             .ok_or_else(|| bad(1, format!("no `{name}` column")))
     };
     let (scene, condition, m, f, recall) = (
@@ -220,13 +256,12 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
         col("recall")?,
     );
     let mut out = Vec::new();
-    for (i, line) in lines.enumerate() {
-        let fields: Vec<&str> = line.split(',').collect();
+    for (line, fields) in records {
         let get = |k: usize, name: &str| {
             fields
                 .get(k)
-                .copied()
-                .ok_or_else(|| bad(i + 2, format!("no `{name}` field")))
+                .map(String::as_str)
+                .ok_or_else(|| bad(line, format!("no `{name}` field")))
         };
         if get(m, "method")? != method {
             continue;
@@ -237,7 +272,7 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
                 return Ok(0.0);
             }
             v.parse::<f64>()
-                .map_err(|_| bad(i + 2, format!("`{name}` = {v:?} is not a number")))
+                .map_err(|_| bad(line, format!("`{name}` = {v:?} is not a number")))
         };
         out.push((
             format!("{}-{}", get(scene, "scene")?, get(condition, "condition")?),
@@ -689,6 +724,25 @@ mod tests {
         )
         .unwrap();
         let r = read_results(&path, "mmnorm").unwrap();
+        assert_eq!(r.len(), 1);
+        // A failed method's error is quoted and may hold commas and line breaks.
+        let mut text = std::fs::read_to_string(&path).unwrap();
+        text.push_str("cup-flat,nlos,mmnorm,0.000000,,,\"no points, \"\"x\"\"\nat all\"\n");
+        text.push_str("cup-side,los,mmnorm,0.5,1,0.4\n");
+        std::fs::write(&path, &text).unwrap();
+        let failed = read_results(&path, "mmnorm").unwrap();
+        assert_eq!(failed.len(), 3, "{failed:?}");
+        assert_eq!(failed[1].0, "cup-flat-nlos");
+        assert_eq!(failed[1].1.f_score, 0.0);
+        assert_eq!(failed[2].0, "cup-side-los");
+        // Lines are counted through the quoted break: the last record starts on line 6.
+        std::fs::write(
+            &path,
+            text.replace("cup-side,los,mmnorm,0.5", "cup-side,los,mmnorm,x"),
+        )
+        .unwrap();
+        let e = read_results(&path, "mmnorm").unwrap_err().to_string();
+        assert!(e.contains("line 6"), "{e}");
         assert_eq!(
             r,
             vec![(
