@@ -148,7 +148,7 @@ pub struct SuiteCoverage {
     /// The suite file's stem (`reduced`, `paper`): the columns' prefix.
     pub label: String,
     pub path: PathBuf,
-    /// "W×H cm at S mm, z = Z cm": what the aperture is.
+    /// "W×H cm at S mm, C cm above the objects" (the first case's clearance): the aperture.
     pub aperture: String,
     pub cases: Vec<CaseCoverage>,
 }
@@ -169,12 +169,13 @@ pub fn suite_coverage(suite: &Suite, quiet: bool) -> SuiteCoverage {
     progress.finish();
     let aperture = suite.cases.first().map_or(String::new(), |c| {
         let a = &c.scene.aperture;
+        let top_m = truth_mesh(&c.scene).bounds().map_or(0.0, |(_, hi)| hi[2]);
         format!(
-            "{:.0}×{:.0} cm at {:.2} mm, z = {:.0} cm",
+            "{:.0}×{:.0} cm at {:.2} mm, {:.0} cm above the objects",
             a.width_m * 100.0,
             a.height_m * 100.0,
             a.spacing_m * 1e3,
-            a.z_m * 100.0
+            (a.z_m - top_m) * 100.0
         )
     });
     SuiteCoverage {
