@@ -408,8 +408,10 @@ pub fn coverage_md(
         md,
         "The F-score of an ideal specular reconstruction: every top-view truth point whose \
          normal, extended, meets the aperture unblocked, and no other point, scored as a \
-         method is (τ = 1.5 cm, with the §5 position correction). It leaves out the Fresnel \
-         zone, edges and diffuse echoes, so a method can recall somewhat more.\n"
+         method's points are (τ = 1.5 cm, with the §5 position correction). Real echoes also \
+         come from within a Fresnel zone, from edges and from diffuse scattering, which it \
+         leaves out, so a method can recall somewhat more. The sheet, the antenna pattern and \
+         the TX–RX spacing are left out too, so each NLOS row equals its LOS row.\n"
     );
     let _ = writeln!(
         md,
