@@ -1,7 +1,7 @@
 //! `mmnormd bench coverage`: how much of each case's truth an aperture can show a method that
 //! sees specular echoes, found from the geometry alone, without simulating.
 //!
-//! A point of the top-view truth ([`top_surface_with_normals`]) is *seen* when the line along
+//! A point of the top-view truth ([`crate::sim::truth::top_surface_with_normals`]) is *seen* when the line along
 //! its normal (its mirror direction for a monostatic antenna) reaches the aperture's plane inside
 //! the rectangle that the antennas span, with no geometry of the scene in the way. The *ideal*
 //! reconstruction is the seen points themselves, scored against the whole truth exactly as a
@@ -23,12 +23,12 @@ use super::suite::{Case, Suite};
 use super::{BenchError, io};
 use crate::capture::dir::write_atomically;
 use crate::eval::{Metrics, evaluate, quantile};
-use crate::geometry::{Bvh, TriMesh};
+use crate::geometry::Bvh;
 use crate::plot::{BLACK, BLUE, CdfChart, GREEN, Marker, ORANGE, PINK, RED, Rgb, Series};
 use crate::progress::Progress;
 use crate::sim::aperture::raster_antennas;
-use crate::sim::scene::{ObjectGeometry, Scene};
-use crate::sim::truth::{TOP_GRID_M, top_surface_with_normals};
+use crate::sim::scene::Scene;
+use crate::sim::truth::{TOP_GRID_M, scene_mesh, top_surface_in};
 
 /// Shadow rays start this far off the surface along the normal, metres.
 const RAY_OFFSET_M: f64 = 1e-4;
@@ -74,17 +74,6 @@ impl ApertureRect {
     }
 }
 
-/// Every surface of `scene` merged: the mesh its truth is taken from (the simulator's own).
-pub fn truth_mesh(scene: &Scene) -> TriMesh {
-    let mut mesh = TriMesh::default();
-    for o in &scene.objects {
-        if let ObjectGeometry::Surface(m) = &o.geometry {
-            mesh.append(m);
-        }
-    }
-    mesh
-}
-
 /// Which `points` (with unit `normals`) `rect` sees along their mirror lines, none of which
 /// may cross a triangle of `bvh` on the way.
 pub fn seen(
@@ -118,9 +107,9 @@ pub struct CaseCoverage {
 
 /// The coverage of `case` at F-score threshold `tau_m`.
 pub fn case_coverage(case: &Case, tau_m: f64) -> CaseCoverage {
-    let mesh = truth_mesh(&case.scene);
-    let (truth, normals) = top_surface_with_normals(&mesh, TOP_GRID_M);
+    let mesh = scene_mesh(&case.scene);
     let bvh = Bvh::build(&mesh);
+    let (truth, normals) = top_surface_in(&mesh, &bvh, TOP_GRID_M);
     let rect = ApertureRect::of(&case.scene);
     let mask = seen(&truth, &normals, &bvh, &rect);
     let (points, point_normals): (Vec<[f64; 3]>, Vec<[f64; 3]>) = truth
@@ -169,7 +158,7 @@ pub fn suite_coverage(suite: &Suite, quiet: bool) -> SuiteCoverage {
     progress.finish();
     let aperture = suite.cases.first().map_or(String::new(), |c| {
         let a = &c.scene.aperture;
-        let top_m = truth_mesh(&c.scene).bounds().map_or(0.0, |(_, hi)| hi[2]);
+        let top_m = scene_mesh(&c.scene).bounds().map_or(0.0, |(_, hi)| hi[2]);
         format!(
             "{:.0}×{:.0} cm at {:.2} mm, {:.0} cm above the objects",
             a.width_m * 100.0,
@@ -353,7 +342,7 @@ pub fn coverage_chart(suites: &[SuiteCoverage], achieved: &[(String, Achieved)])
             // The chart's font has no `×`.
             label: format!("ideal, {} ({})", s.label, s.aperture.replace('×', "x")),
             colour,
-            values: s.cases.iter().map(|c| c.ideal.f_score).collect(),
+            values: s.ideal_f_scores(),
         })
         .collect();
     if !achieved.is_empty() {
@@ -386,9 +375,11 @@ pub fn coverage_chart(suites: &[SuiteCoverage], achieved: &[(String, Achieved)])
     }
 }
 
-/// The per-case F-scores of a suite's ideal.
-fn ideal_f(s: &SuiteCoverage) -> Vec<f64> {
-    s.cases.iter().map(|c| c.ideal.f_score).collect()
+impl SuiteCoverage {
+    /// The ideal's F-score of every case, in the suite's order.
+    pub fn ideal_f_scores(&self) -> Vec<f64> {
+        self.cases.iter().map(|c| c.ideal.f_score).collect()
+    }
 }
 
 fn fmt(v: Option<f64>) -> String {
@@ -419,7 +410,7 @@ pub fn coverage_md(
     );
     let _ = writeln!(md, "|---|---|---|---|---|---|");
     for s in suites {
-        let f = ideal_f(s);
+        let f = s.ideal_f_scores();
         let _ = writeln!(
             md,
             "| `{}` | {} | {} | {} | {} | {} |",
@@ -571,6 +562,8 @@ pub fn write_coverage(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::TriMesh;
+    use crate::sim::truth::top_surface_with_normals;
 
     fn rect(half_x: f64, half_y: f64, z: f64) -> ApertureRect {
         ApertureRect {

@@ -357,7 +357,7 @@ pub fn coverage(a: CoverageArgs, quiet: bool) -> Result<()> {
     };
     write_coverage(&suites, &achieved, &a.out)?;
     for s in &suites {
-        let f: Vec<f64> = s.cases.iter().map(|c| c.ideal.f_score).collect();
+        let f = s.ideal_f_scores();
         println!(
             "{} ({}): {} cases, ideal F median {:.3}, 25th percentile {:.3}",
             s.label,

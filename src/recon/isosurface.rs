@@ -305,12 +305,7 @@ pub fn simulate_candidates(
         return Err(OptimisationError::NoComponents);
     }
     let t = capture.plan.samples_per_chirp;
-    let canceller = NearEchoCanceller::new(
-        t,
-        opts.cost_pad_factor,
-        opts.near_echo_tones,
-        opts.near_echo_ratio,
-    );
+    let canceller = NearEchoCanceller::of_cost(t, opts);
     let fft_len = canceller.fft_len();
     let (lo, hi) = union_box(fields);
     let pad = opts.cost_pad_factor as i64;

@@ -51,6 +51,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::{Fft, FftPlanner};
 
+use super::config::Optimisation;
 use super::image::box_round_trip_m;
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
@@ -221,6 +222,17 @@ impl NearEchoCanceller {
     /// Spectra of `samples`-long chirps zero-padded to `samples·pad_factor`; `tones` echoes at
     /// most are removed per chirp (0: none), each while it is at least `ratio` of the window's
     /// peak.
+    /// The canceller of the isosurface cost's settings (`cost_pad_factor`, `near_echo_tones`,
+    /// `near_echo_ratio`), for `samples`-long chirps: the one the cost and the imaging share.
+    pub fn of_cost(samples: usize, opts: &Optimisation) -> NearEchoCanceller {
+        NearEchoCanceller::new(
+            samples,
+            opts.cost_pad_factor,
+            opts.near_echo_tones,
+            opts.near_echo_ratio,
+        )
+    }
+
     pub fn new(samples: usize, pad_factor: usize, tones: usize, ratio: f64) -> NearEchoCanceller {
         let fft_len = samples * pad_factor.max(1);
         NearEchoCanceller {

@@ -222,12 +222,7 @@ pub fn image_volume(
         Some(o) if o.remove_echo => {
             let (lo, hi) = grid.extent();
             let opts = &config.optimisation;
-            let canceller = NearEchoCanceller::new(
-                capture.plan.samples_per_chirp,
-                opts.cost_pad_factor,
-                opts.near_echo_tones,
-                opts.near_echo_ratio,
-            );
+            let canceller = NearEchoCanceller::of_cost(capture.plan.samples_per_chirp, opts);
             let pad_bins = opts.cost_pad_factor as i64;
             let (clean, antennas) = without_near_echoes(capture, lo, hi, &canceller, pad_bins);
             tracing::info!(

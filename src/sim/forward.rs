@@ -41,6 +41,7 @@ use rayon::prelude::*;
 use super::aperture::{Antennas, Pattern, raster_antennas};
 use super::scene::{ObjectGeometry, Occluder, Scene};
 use super::surface::{self, Cluster, EdgeSample, Samples};
+use super::truth;
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::{Capture, FrequencyPlan};
 use crate::geometry::vec3::{add, dot, scale, sub};
@@ -429,7 +430,6 @@ fn view_region(antennas: &Antennas) -> ViewRegion {
 /// Samples every object and merges the surfaces into the truth mesh.
 fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
     let set = &scene.settings;
-    let mut truth = TriMesh::default();
     let mut s = Scatterers {
         spec: Samples::default(),
         spec_weight: Vec::new(),
@@ -519,11 +519,10 @@ fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
                     mesh.triangles.len()
                 );
                 s.local.push(local);
-                truth.append(mesh);
             }
         }
     }
-    (s, truth)
+    (s, truth::scene_mesh(scene))
 }
 
 /// One leg of a path, from a scatterer to an antenna: direction, length, the pattern and sheet

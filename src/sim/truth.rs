@@ -3,6 +3,7 @@
 
 use rayon::prelude::*;
 
+use super::scene::{ObjectGeometry, Scene};
 use crate::geometry::{Bvh, TriMesh};
 
 /// Grid pitch of the top-view truth, metres.
@@ -14,12 +15,28 @@ pub fn top_surface(mesh: &TriMesh, grid_m: f64) -> Vec<[f64; 3]> {
     top_surface_with_normals(mesh, grid_m).0
 }
 
+/// Every surface object of `scene` merged into one mesh, in the scene's order: the mesh its
+/// truth is taken from (the cardboard sheet is not part of it).
+pub fn scene_mesh(scene: &Scene) -> TriMesh {
+    let mut mesh = TriMesh::default();
+    for o in &scene.objects {
+        if let ObjectGeometry::Surface(m) = &o.geometry {
+            mesh.append(m);
+        }
+    }
+    mesh
+}
+
 /// [`top_surface`] with the unit normal of each hit triangle, turned to face up.
 pub fn top_surface_with_normals(mesh: &TriMesh, grid_m: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    top_surface_in(mesh, &Bvh::build(mesh), grid_m)
+}
+
+/// [`top_surface_with_normals`] with `mesh`'s hierarchy already built.
+pub fn top_surface_in(mesh: &TriMesh, bvh: &Bvh, grid_m: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
     let Some((lo, hi)) = mesh.bounds() else {
         return (Vec::new(), Vec::new());
     };
-    let bvh = Bvh::build(mesh);
     let kx0 = (lo[0] / grid_m).floor() as i64;
     let kx1 = (hi[0] / grid_m).ceil() as i64;
     let ky0 = (lo[1] / grid_m).floor() as i64;
@@ -29,7 +46,6 @@ pub fn top_surface_with_normals(mesh: &TriMesh, grid_m: f64) -> (Vec<[f64; 3]>, 
     (ky0..ky1)
         .into_par_iter()
         .flat_map_iter(|ky| {
-            let bvh = &bvh;
             (kx0..kx1).filter_map(move |kx| {
                 let x = (kx as f64 + 0.5) * grid_m;
                 let y = (ky as f64 + 0.5) * grid_m;
