@@ -82,6 +82,38 @@ pub fn label_6(mask: &[bool], dims: [usize; 3], min_voxels: usize) -> Components
     Components { labels, sizes }
 }
 
+/// `components` without those that have no voxel where `reaches(flat index)` holds, relabelled
+/// 1…m in their old order (still the order of each one's first voxel).
+pub fn retain_reaching(components: Components, reaches: impl Fn(usize) -> bool) -> Components {
+    let Components { mut labels, sizes } = components;
+    let mut kept = vec![false; sizes.len()];
+    for (v, &l) in labels.iter().enumerate() {
+        if l != 0 && !kept[l as usize - 1] && reaches(v) {
+            kept[l as usize - 1] = true;
+        }
+    }
+    if kept.iter().all(|&k| k) {
+        return Components { labels, sizes };
+    }
+    let mut new_label = vec![0u32; sizes.len()];
+    let mut new_sizes = Vec::new();
+    for (k, &size) in sizes.iter().enumerate() {
+        if kept[k] {
+            new_sizes.push(size);
+            new_label[k] = new_sizes.len() as u32;
+        }
+    }
+    for l in &mut labels {
+        if *l != 0 {
+            *l = new_label[*l as usize - 1];
+        }
+    }
+    Components {
+        labels,
+        sizes: new_sizes,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -119,6 +151,19 @@ mod tests {
         assert_eq!(c.labels[3], 1);
         assert_eq!(c.labels[8], 2, "voxel (2, 0, 0)");
         assert_eq!(c.labels.iter().filter(|&&l| l != 0).count(), 6);
+    }
+
+    #[test]
+    fn components_that_never_reach_the_region_are_dropped_and_the_rest_relabelled() {
+        // Three components along x in a 7×1×1 row; the region is x ≥ 3, which the first misses
+        // and the second (x = 2..3) crosses into.
+        let dims = [7, 1, 1];
+        let on = [[0, 0, 0], [2, 0, 0], [3, 0, 0], [5, 0, 0], [6, 0, 0]];
+        let c = retain_reaching(label_6(&grid(dims, &on), dims, 1), |v| v >= 3);
+        assert_eq!(c.sizes, vec![2, 2]);
+        assert_eq!(c.labels, vec![0, 0, 1, 1, 0, 2, 2]);
+        let all = label_6(&grid(dims, &on), dims, 1);
+        assert_eq!(retain_reaching(all.clone(), |_| true), all);
     }
 
     #[test]

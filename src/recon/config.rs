@@ -134,8 +134,12 @@ pub struct AutoVolume {
     /// 0.5 (the default until 2026-11-25) cut the rest of a long object out of the box (see
     /// `recon::volume`).
     pub power_fraction: f64,
-    /// Padding around the high-power region, metres.
+    /// Padding around the high-power region, metres. The padded region is the volume's core:
+    /// Li's threshold is computed over it, and only mask components that reach into it are kept.
     pub pad_m: f64,
+    /// How far the imaged volume extends beyond the core, metres, so that a component which
+    /// crosses the core's faces is imaged whole instead of cut (see `recon::volume`).
+    pub margin_m: f64,
 }
 
 impl Default for AutoVolume {
@@ -146,6 +150,7 @@ impl Default for AutoVolume {
             coarse_antennas: 10000,
             power_fraction: 0.25,
             pad_m: 0.03,
+            margin_m: 0.03,
         }
     }
 }
@@ -504,6 +509,12 @@ impl ReconConfig {
             "auto_volume.pad_m",
             a.pad_m,
             a.pad_m >= 0.0,
+            "must not be negative",
+        )?;
+        check(
+            "auto_volume.margin_m",
+            a.margin_m,
+            a.margin_m >= 0.0,
             "must not be negative",
         )?;
         check(

@@ -14,7 +14,7 @@ use num_complex::Complex32;
 use serde::Serialize;
 
 use super::baselines::{backprojection_points, interferometric_points};
-use super::components::label_6;
+use super::components::{label_6, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
@@ -27,7 +27,7 @@ use super::normals::{Candidates, normal_field};
 use super::rma::{RmaReport, rma_image};
 use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
 use super::trace::SampledField;
-use super::volume::{AutoReport, VolumeError, select};
+use super::volume::{AutoReport, Core, VolumeError, select};
 use crate::capture::{Capture, InvalidCapture};
 use crate::geometry::ply::{self, Column};
 use crate::progress::Progress;
@@ -91,6 +91,8 @@ pub struct Summary {
     pub antennas: usize,
     pub samples_per_chirp: usize,
     pub grid: VoxelGrid,
+    /// The grid's voxels that hold the echo region; the rest is the margin (`recon::volume`).
+    pub core: Core,
     pub auto_volume: Option<AutoReport>,
     /// (stage, seconds), in order.
     pub stage_s: Vec<(String, f64)>,
@@ -156,6 +158,8 @@ pub struct ImagingReport {
 /// The volume and its image, shared by every method.
 pub struct Imaged {
     pub grid: VoxelGrid,
+    /// The voxels of `grid` that hold the echo region (`recon::volume::Core`).
+    pub core: Core,
     pub auto_volume: Option<AutoReport>,
     /// The cropped range profiles, when backprojection made the image (exact votes reuse them).
     pub profiles: Option<RangeProfiles>,
@@ -203,7 +207,7 @@ pub fn image_volume(
     config.validate()?;
     let capture = &*through_occluder(capture, config);
     let mut stages = Stages::default();
-    let (grid, auto_volume) = select(
+    let (grid, core, auto_volume) = select(
         capture,
         config.volume,
         config.voxel_m,
@@ -216,11 +220,19 @@ pub fn image_volume(
         grid.voxel_m * 1e3,
         grid.origin_m
     );
+    if core != Core::whole(&grid) {
+        tracing::info!(
+            "volume core: voxels {:?}..{:?}; the rest is the margin",
+            core.lo,
+            core.hi
+        );
+    }
     stages.lap("volume");
     // Timed with the image it serves.
     let cleaned = match config.occluder {
         Some(o) if o.remove_echo => {
-            let (lo, hi) = grid.extent();
+            // Echoes nearer than the core are the sheet's and the clutter's, as with no margin.
+            let (lo, hi) = core.extent_m(&grid);
             let opts = &config.optimisation;
             let canceller = NearEchoCanceller::of_cost(capture.plan.samples_per_chirp, opts);
             let pad_bins = opts.cost_pad_factor as i64;
@@ -285,6 +297,7 @@ pub fn image_volume(
     stages.lap("image");
     Ok(Imaged {
         grid,
+        core,
         auto_volume,
         profiles,
         image,
@@ -309,10 +322,17 @@ pub fn reconstruct_imaged(
     let (mut summary, mut stages) = start_summary(capture, config, imaged);
     let grid = imaged.grid;
     let magnitude = &imaged.magnitude;
+    // The baselines threshold the image as a whole, so they see the core only: the margin is
+    // there for mmNorm's components that cross the core's faces.
+    let baseline_view = || {
+        let core = &imaged.core;
+        (core.grid(&grid), core.crop(&grid, magnitude))
+    };
     let (points_m, normals, components) = match config.method {
         Method::Backprojection => {
+            let (grid, magnitude) = baseline_view();
             let (points, kept) =
-                backprojection_points(magnitude, &grid, config.backprojection_fraction);
+                backprojection_points(&magnitude, &grid, config.backprojection_fraction);
             let mut mask = vec![false; grid.len()];
             for &v in &kept {
                 mask[v] = true;
@@ -323,10 +343,11 @@ pub fn reconstruct_imaged(
             (points, None, comps)
         }
         Method::Interferometric => {
+            let (grid, magnitude) = baseline_view();
             let (points, z_ref) = interferometric_points(
                 capture,
                 &grid,
-                magnitude,
+                &magnitude,
                 config.interferometric_subbands,
                 config.interferometric_fraction,
                 config.pad_factor,
@@ -436,6 +457,7 @@ fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (S
         antennas: capture.antennas(),
         samples_per_chirp: capture.plan.samples_per_chirp,
         grid: imaged.grid,
+        core: imaged.core,
         auto_volume: imaged.auto_volume.clone(),
         stage_s: Vec::new(),
         image_peak,
@@ -502,6 +524,7 @@ fn mmnorm_fields(
     let mask = li_mask(
         magnitude,
         grid,
+        &imaged.core,
         config.normal_floor,
         config.li_voxels,
         &config.li_exponents,
@@ -553,12 +576,17 @@ fn mmnorm_fields(
         .zip(&normals)
         .map(|(&m, n)| m && n[0].is_finite())
         .collect();
+    // Components that lie in the margin alone are not the echo region's.
+    let label = |min_voxels: usize| {
+        let labelled = label_6(&with_normal, grid.dims, min_voxels);
+        retain_reaching(labelled, |v| imaged.core.contains(grid, v))
+    };
     let mut min_voxels = to_voxels(config.min_component_m3);
-    let mut labelled = label_6(&with_normal, grid.dims, min_voxels);
+    let mut labelled = label(min_voxels);
     let mut used_fallback = false;
     if labelled.sizes.is_empty() {
         min_voxels = to_voxels(config.fallback_component_m3);
-        labelled = label_6(&with_normal, grid.dims, min_voxels);
+        labelled = label(min_voxels);
         used_fallback = true;
     }
     summary.mask = Some(MaskSummary {

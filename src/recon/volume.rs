@@ -18,6 +18,21 @@
 //!    accuracy suite (102 cases) the lower fraction raised mmNorm's median F-score from 0.80 to
 //!    0.88 and the 25th percentile from 0.54 to 0.69. 0.15 and 0.1 gave the same median but
 //!    made more cases worse (the cups rotated; the fork on its side through cardboard).
+//! 4. **Core and margin.** That padded box is the volume's [`Core`]. The imaged grid extends
+//!    `margin_m` (3 cm) beyond it on the four lateral faces. The coarse image spans only the
+//!    aperture's x–y extent, but a surface tilted towards the aperture returns its specular echo
+//!    from beyond it: the cracker box on its side has a face 21 cm long under a 12 cm aperture.
+//!    Without a margin, its echoing end crossed the box's face and was cut, and mmNorm placed
+//!    the cut component 1.3–1.6 cm too low. The margin must not change the mask elsewhere, so
+//!    the core keeps the roles the box had (`recon::mask`, `recon::pipeline`):
+//!    - Li's threshold and the mask's box guard see the core's voxels only; padding the box
+//!      instead lowered the threshold with the empty space it added, and changed the mask of
+//!      every case (`docs/bench/analysis.md`);
+//!    - mask components with no voxel in the core are dropped;
+//!    - the near echoes removed before imaging are those nearer than the core;
+//!    - the baselines threshold the core's image only.
+//!
+//!    An explicit box is its own core, with no margin.
 //!
 //! The aperture plane is the mean height of the antennas' phase centres; the antennas look down
 //! (−z), as in every capture mmnormd writes.
@@ -113,14 +128,72 @@ pub fn grid_for(bounds: [f64; 6], voxel_m: f64) -> Result<VoxelGrid, VolumeError
     })
 }
 
-/// The fine grid for `spec`, and the automatic search's report where it ran.
+/// The voxels of a grid that hold the echo region: indices `lo[a]..hi[a]` along each axis. With
+/// an automatic volume it is the padded high-power region, and the grid extends `margin_m`
+/// beyond it; with an explicit box it is the whole grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Core {
+    pub lo: [usize; 3],
+    pub hi: [usize; 3],
+}
+
+impl Core {
+    /// Every voxel of `grid`.
+    pub fn whole(grid: &VoxelGrid) -> Core {
+        Core {
+            lo: [0; 3],
+            hi: grid.dims,
+        }
+    }
+
+    /// Whether flat index `v` of `grid` lies in the core.
+    pub fn contains(&self, grid: &VoxelGrid, v: usize) -> bool {
+        let [_, ny, nz] = grid.dims;
+        let ijk = [v / (ny * nz), (v / nz) % ny, v % nz];
+        (0..3).all(|a| ijk[a] >= self.lo[a] && ijk[a] < self.hi[a])
+    }
+
+    /// The core as a grid of its own.
+    pub fn grid(&self, grid: &VoxelGrid) -> VoxelGrid {
+        VoxelGrid {
+            origin_m: grid.centre(self.lo[0], self.lo[1], self.lo[2]),
+            voxel_m: grid.voxel_m,
+            dims: [0, 1, 2].map(|a| self.hi[a] - self.lo[a]),
+        }
+    }
+
+    /// The core's values of `values` (C order on `grid`), in C order on [`Core::grid`].
+    pub fn crop<T: Copy>(&self, grid: &VoxelGrid, values: &[T]) -> Vec<T> {
+        let [_, ny, nz] = grid.dims;
+        let mut out = Vec::with_capacity(self.grid(grid).len());
+        for i in self.lo[0]..self.hi[0] {
+            for j in self.lo[1]..self.hi[1] {
+                let row = (i * ny + j) * nz;
+                out.extend_from_slice(&values[row + self.lo[2]..row + self.hi[2]]);
+            }
+        }
+        out
+    }
+
+    /// The centres of the core's first and last voxels, as [`VoxelGrid::extent`] gives them for
+    /// the grid.
+    pub fn extent_m(&self, grid: &VoxelGrid) -> ([f64; 3], [f64; 3]) {
+        let last = |a: usize| self.hi[a].saturating_sub(1);
+        (
+            grid.centre(self.lo[0], self.lo[1], self.lo[2]),
+            grid.centre(last(0), last(1), last(2)),
+        )
+    }
+}
+
+/// The fine grid for `spec`, its core, and the automatic search's report where it ran.
 pub fn select(
     capture: &Capture,
     spec: VolumeSpec,
     voxel_m: f64,
     pad_factor: usize,
     auto: &AutoVolume,
-) -> Result<(VoxelGrid, Option<AutoReport>), VolumeError> {
+) -> Result<(VoxelGrid, Core, Option<AutoReport>), VolumeError> {
     let aperture_z = aperture_z_m(capture);
     match spec {
         VolumeSpec::Box(b) => {
@@ -130,7 +203,8 @@ pub fn select(
                     aperture_z_m: aperture_z,
                 });
             }
-            Ok((grid_for(b, voxel_m)?, None))
+            let grid = grid_for(b, voxel_m)?;
+            Ok((grid, Core::whole(&grid), None))
         }
         VolumeSpec::Auto => {
             let report = find_region(capture, aperture_z, pad_factor, auto)?;
@@ -147,7 +221,42 @@ pub fn select(
             }
             // Never reach up to the aperture itself.
             b[5] = b[5].min(snap(aperture_z - auto.range_window_m[0], false));
-            Ok((grid_for(b, voxel_m)?, Some(report)))
+            let core_grid = grid_for(b, voxel_m)?;
+            // The margin, in whole voxels, on the lateral faces only: the coarse search spans
+            // the aperture's x–y extent, which a surface tilted towards the aperture can
+            // outreach, but every height that holds an echo (the range window).
+            let n = (auto.margin_m / voxel_m - 1e-9).ceil().max(0.0) as usize;
+            let grown_m = n as f64 * voxel_m;
+            for a in 0..2 {
+                b[2 * a] -= grown_m;
+                b[2 * a + 1] += grown_m;
+            }
+            let grid = VoxelGrid {
+                origin_m: [b[0], b[2], b[4]],
+                dims: [
+                    core_grid.dims[0] + 2 * n,
+                    core_grid.dims[1] + 2 * n,
+                    core_grid.dims[2],
+                ],
+                ..core_grid
+            };
+            if grid.len() > MAX_VOXELS {
+                return Err(VolumeError::TooLarge {
+                    bounds: b,
+                    voxel_m,
+                    voxels: grid.len(),
+                    max: MAX_VOXELS,
+                });
+            }
+            let core = Core {
+                lo: [n, n, 0],
+                hi: [
+                    n + core_grid.dims[0],
+                    n + core_grid.dims[1],
+                    core_grid.dims[2],
+                ],
+            };
+            Ok((grid, core, Some(report)))
         }
     }
 }
@@ -311,6 +420,44 @@ mod tests {
             let hi = lo + grid.dims[a] as f64 * grid.voxel_m;
             p[a] > lo && p[a] < hi
         })
+    }
+
+    #[test]
+    fn the_margin_surrounds_the_unmargined_box_laterally_and_its_core_is_that_box() {
+        let capture = two_parts(0.4);
+        let select_with = |margin_m: f64| {
+            let auto = AutoVolume {
+                margin_m,
+                ..AutoVolume::default()
+            };
+            select(&capture, VolumeSpec::Auto, 0.002, 4, &auto).expect("a volume")
+        };
+        let (plain, plain_core, _) = select_with(0.0);
+        assert_eq!(plain_core, Core::whole(&plain));
+        let (wide, core, _) = select_with(0.03);
+        // 0.03 m is 15 voxels of 2 mm on each lateral side; heights are not extended.
+        assert_eq!(core.lo, [15, 15, 0]);
+        assert_eq!(
+            core.hi,
+            [plain.dims[0] + 15, plain.dims[1] + 15, plain.dims[2]]
+        );
+        assert_eq!(
+            wide.dims,
+            [plain.dims[0] + 30, plain.dims[1] + 30, plain.dims[2]]
+        );
+        let inner = core.grid(&wide);
+        assert_eq!(inner.dims, plain.dims);
+        for a in 0..3 {
+            assert!(
+                (inner.origin_m[a] - plain.origin_m[a]).abs() < 1e-12,
+                "{inner:?} {plain:?}"
+            );
+        }
+        let values: Vec<usize> = (0..wide.len()).collect();
+        let cropped = core.crop(&wide, &values);
+        assert_eq!(cropped.len(), plain.len());
+        assert!(cropped.iter().all(|&v| core.contains(&wide, v)));
+        assert_eq!(core.extent_m(&wide).0, inner.extent().0);
     }
 
     #[test]
