@@ -42,6 +42,12 @@ impl Canvas {
         }
     }
 
+    /// The pixel at (x, y), None outside the canvas.
+    pub fn get(&self, x: i64, y: i64) -> Option<Rgb> {
+        (x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height)
+            .then(|| self.pixels[y as usize * self.width + x as usize])
+    }
+
     pub fn fill_rect(&mut self, x: i64, y: i64, w: i64, h: i64, c: Rgb) {
         for j in y..y + h {
             for i in x..x + w {

@@ -107,8 +107,46 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
     let copy = std::fs::read_to_string(out.path().join("BENCH.md")).expect("markdown copy");
     assert!(copy.contains("](fig12a_f_score.png)") || copy.contains("/fig12a_f_score.png)"));
 
-    // A second run finds every case finished and runs none of them again.
+    // Each method's summary holds the parameters it ran with; the NLOS case's search for
+    // echoes from past the sheet.
     let runs = out.path().join("work/runs");
+    let window_start_m = |summary: &serde_json::Value| {
+        summary["parameters"]["auto_volume"]["range_window_m"][0]
+            .as_f64()
+            .expect("range_window_m")
+    };
+    let mut starts_m = Vec::new();
+    for case in ["sphere-flat-los", "sphere-flat-nlos"] {
+        for (method, isosurface) in [
+            ("mmnorm", "optimized"),
+            ("center", "center"),
+            ("backprojection", "optimized"),
+        ] {
+            let path = runs.join(case).join(format!("{method}.summary.json"));
+            let text = std::fs::read_to_string(&path).expect("summary.json");
+            let summary: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+            let parameters = &summary["parameters"];
+            let expected_method = if method == "backprojection" {
+                "backprojection"
+            } else {
+                "mmnorm"
+            };
+            assert_eq!(parameters["method"], expected_method, "{path:?}");
+            assert_eq!(parameters["isosurface"], isosurface, "{path:?}");
+            assert!(summary["result"]["grid"]["dims"].is_array(), "{path:?}");
+            starts_m.push(window_start_m(&summary));
+        }
+    }
+    assert!(
+        starts_m[..3].iter().all(|&s| s == starts_m[0]),
+        "{starts_m:?}"
+    );
+    assert!(
+        starts_m[3..].iter().all(|&s| s > starts_m[0] + 0.05),
+        "{starts_m:?}"
+    );
+
+    // A second run finds every case finished and runs none of them again.
     let result_json = |case: &str| runs.join(case).join("result.json");
     let written = |case: &str| {
         std::fs::metadata(result_json(case))

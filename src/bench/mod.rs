@@ -33,6 +33,7 @@ pub use suite::{Case, Suite, SuiteError};
 use crate::capture::dir::{CaptureDirError, write_atomically};
 use crate::geometry::MeshError;
 use crate::preview::PreviewError;
+use crate::recon::output::OutputError;
 use crate::recon::pipeline::ReconError;
 
 /// Why the benchmark stopped. A single case's failure does not stop it: it is reported.
@@ -48,6 +49,8 @@ pub enum BenchError {
     Recon(#[from] ReconError),
     #[error(transparent)]
     Picture(#[from] PreviewError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
     #[error("{path}: {source}")]
     Io {
         path: PathBuf,

@@ -1,8 +1,9 @@
 //! Running the cases: capture (cached), one image shared by every method, mmNorm with its two
 //! ablations sharing the normal field and RSDFs, the two baselines, and the scores. Each case
 //! leaves `runs/<id>/`: the points of each method (`<method>.ply`), their per-point scores
-//! (`<method>.scores.npy`: point error, relative error, normal cosine) and, written last,
-//! `result.json`. A case whose `result.json` carries the same key and was written by the same
+//! (`<method>.scores.npy`: point error, relative error, normal cosine), the reconstruction's
+//! summary (`<method>.summary.json`, as `reconstruct` writes it, with the case's exact
+//! parameters) and, written last, `result.json`. A case whose `result.json` carries the same key and was written by the same
 //! build (the running executable's hash, [`build_id`]) is not run again, so an interrupted bench
 //! resumes where it stopped, and a rebuilt one reconstructs every case again from the cached
 //! captures. `--report-only` reads the results of any build.
@@ -24,6 +25,7 @@ use crate::capture::npy;
 use crate::eval::{Metrics, PointScores, estimate_normals, evaluate_points};
 use crate::progress::Progress;
 use crate::recon::config::{Isosurface, Method};
+use crate::recon::output::write_summary;
 use crate::recon::{Reconstruction, image_volume, reconstruct_imaged, reconstruct_isosurfaces};
 use crate::sim::truth::{TOP_GRID_M, top_surface_with_normals};
 
@@ -276,6 +278,17 @@ pub fn run_case(
     let imaged = image_volume(capture, &case.recon, true)?;
     std::fs::create_dir_all(&dir).map_err(io(&dir))?;
     let mut outcomes: Vec<(String, Result<Reconstruction, String>)> = Vec::new();
+    let config_of = |name: &str| {
+        let mut config = case.recon.clone();
+        match name {
+            "center" => config.isosurface = Isosurface::Center,
+            "weighted" => config.isosurface = Isosurface::Weighted,
+            "backprojection" => config.method = Method::Backprojection,
+            "interferometric" => config.method = Method::Interferometric,
+            _ => {}
+        }
+        config
+    };
     stage("mmnorm");
     match reconstruct_isosurfaces(
         capture,
@@ -304,10 +317,8 @@ pub fn run_case(
         ("backprojection", Method::Backprojection),
         ("interferometric", Method::Interferometric),
     ] {
-        let config = crate::recon::ReconConfig {
-            method,
-            ..case.recon.clone()
-        };
+        let config = config_of(name);
+        debug_assert_eq!(config.method, method);
         let r = reconstruct_imaged(capture, &config, &imaged, true).map_err(|e| e.to_string());
         outcomes.push((name.into(), r));
     }
@@ -337,6 +348,9 @@ pub fn run_case(
                 );
                 let ply = dir.join(format!("{name}.ply"));
                 write_atomically(&ply, &recon.encode_ply())?;
+                let summary = dir.join(format!("{name}.summary.json"));
+                let capture_label = opts.cache_dir.join(&capture_key).display().to_string();
+                write_summary(&summary, &capture_label, &config_of(name), recon)?;
                 let npy_path = dir.join(format!("{name}.scores.npy"));
                 write_atomically(&npy_path, &npy::encode_f64_rows(&score_rows(&scores)))?;
                 clouds.push((name, recon.points_m.as_slice()));
@@ -369,6 +383,7 @@ pub fn run_case(
         &truth,
         find("mmnorm").unwrap_or(&[]),
         find("backprojection").unwrap_or(&[]),
+        case.recon.voxel_m,
     )?;
     let result = CaseResult {
         key,

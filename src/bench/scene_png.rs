@@ -1,6 +1,10 @@
 //! One picture per case in the style of the paper's Fig. 10: truth, mmNorm and the
 //! backprojection baseline, from the top (colour = height) and from the side (colour = y), all
 //! panels on the same axes so their sizes and positions compare directly.
+//!
+//! A reconstruction's points sit on its voxel lattice. Each is drawn as a square at least one
+//! voxel wide, so that a surface covered at the voxel pitch shows as a solid patch; squares of a
+//! fixed size alias against the pixel grid into stripes that look like structure.
 
 use std::path::Path;
 
@@ -12,14 +16,30 @@ const GAP: i64 = 16;
 const HEAD: i64 = 44;
 const LABEL: i64 = 48;
 
-/// Draws the six panels; points outside the truth's box plus 3 cm are left out.
+/// Smallest square drawn for a point, pixels.
+const MIN_DOT_PX: i64 = 2;
+
+/// Draws the six panels into `path`; points outside the truth's box plus 3 cm are left out.
+/// `voxel_m` is the reconstructions' lattice pitch.
 pub fn write_scene_png(
     path: &Path,
     title: &str,
     truth: &[[f64; 3]],
     mmnorm: &[[f64; 3]],
     backprojection: &[[f64; 3]],
+    voxel_m: f64,
 ) -> Result<(), PreviewError> {
+    draw_scene(title, truth, mmnorm, backprojection, voxel_m).write_png(path)
+}
+
+/// The picture of [`write_scene_png`].
+fn draw_scene(
+    title: &str,
+    truth: &[[f64; 3]],
+    mmnorm: &[[f64; 3]],
+    backprojection: &[[f64; 3]],
+    voxel_m: f64,
+) -> Canvas {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in truth {
@@ -47,6 +67,12 @@ pub fn write_scene_png(
         .fold(0.0f64, f64::max)
         .max(1e-3);
     let scale = (PANEL - 8) as f64 / span;
+    // The truth is a dense sample of the mesh; the reconstructions lie on the voxel lattice.
+    let lattice_px = if voxel_m.is_finite() && voxel_m > 0.0 {
+        ((voxel_m * scale).ceil() as i64).clamp(MIN_DOT_PX, PANEL / 8)
+    } else {
+        MIN_DOT_PX
+    };
     for (row, (name, u, v, colour_axis)) in [("top", 0usize, 1usize, 2usize), ("side", 0, 2, 1)]
         .into_iter()
         .enumerate()
@@ -54,6 +80,7 @@ pub fn write_scene_png(
         let y0 = HEAD + row as i64 * (PANEL + GAP + 14) + 14;
         c.text(4, y0 + PANEL / 2 - 4, name, BLACK, 1);
         for (col, (label, points)) in columns.iter().enumerate() {
+            let dot = if col == 0 { MIN_DOT_PX } else { lattice_px };
             let x0 = LABEL + GAP + col as i64 * (PANEL + GAP);
             c.fill_rect(x0, y0, PANEL, PANEL, [245, 245, 245]);
             for e in 0..PANEL {
@@ -81,7 +108,8 @@ pub fn write_scene_png(
                 let x = x0 + PANEL / 2 + ((p[u] - cu) * scale).round() as i64;
                 let y = y0 + PANEL / 2 - ((p[v] - cv) * scale).round() as i64;
                 let t = (p[colour_axis] - lo[colour_axis]) / (hi[colour_axis] - lo[colour_axis]);
-                c.fill_rect(x, y, 2, 2, viridis(t as f32));
+                let half = (dot - 1) / 2;
+                c.fill_rect(x - half, y - half, dot, dot, viridis(t as f32));
             }
         }
     }
@@ -90,5 +118,45 @@ pub fn write_scene_png(
         span * 100.0
     );
     c.text(GAP, height - 12, &bar, BLACK, 1);
-    c.write_png(path)
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pixels of the top-row panel `col` that still show the panel's background, within the
+    /// square of `half_px` around its centre.
+    fn background_pixels(c: &Canvas, col: i64, half_px: i64) -> usize {
+        let x0 = LABEL + GAP + col * (PANEL + GAP);
+        let y0 = HEAD + 14;
+        let (cx, cy) = (x0 + PANEL / 2, y0 + PANEL / 2);
+        let mut n = 0;
+        for y in cy - half_px..=cy + half_px {
+            for x in cx - half_px..=cx + half_px {
+                if c.get(x, y) == Some([245, 245, 245]) {
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
+
+    #[test]
+    fn a_surface_covered_at_the_voxel_pitch_is_drawn_without_gaps() {
+        // A flat 20 cm square sampled on a 3 mm lattice, in a 26 cm panel: 2.7 pixels a voxel,
+        // where 2-pixel dots leave a blank column every few voxels.
+        let voxel_m = 0.003;
+        let lattice: Vec<[f64; 3]> = (-33..=33)
+            .flat_map(|i| (-33..=33).map(move |j| [i as f64 * voxel_m, j as f64 * voxel_m, 0.1]))
+            .collect();
+        let c = draw_scene("t", &lattice, &lattice, &lattice, voxel_m);
+        assert_eq!(background_pixels(&c, 1, 60), 0, "mmNorm panel");
+        assert_eq!(background_pixels(&c, 2, 60), 0, "backprojection panel");
+        let fixed = draw_scene("t", &lattice, &lattice, &lattice, 0.0);
+        assert!(
+            background_pixels(&fixed, 1, 60) > 100,
+            "fixed 2-pixel dots leave stripes, so the check above can fail"
+        );
+    }
 }

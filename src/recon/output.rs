@@ -36,18 +36,28 @@ pub fn write_reconstruction(
     std::fs::create_dir_all(out).map_err(|e| write_err(out)(e.to_string()))?;
     let ply = out.join("points.ply");
     write_atomically(&ply, &recon.encode_ply()).map_err(|e| write_err(&ply)(e.to_string()))?;
+    write_summary(&out.join("summary.json"), capture_label, config, recon)?;
+    write_previews(out, recon, magnitude)
+}
+
+/// Writes `path` as `summary.json` is written: the version, the capture, the parameters and
+/// the reconstruction's summary, as pretty JSON.
+pub fn write_summary(
+    path: &Path,
+    capture_label: &str,
+    config: &ReconConfig,
+    recon: &Reconstruction,
+) -> Result<(), OutputError> {
     let summary = json!({
         "mmnormd_version": env!("CARGO_PKG_VERSION"),
         "capture": capture_label,
         "parameters": config,
         "result": recon.summary,
     });
-    let path = out.join("summary.json");
     let mut text =
-        serde_json::to_string_pretty(&summary).map_err(|e| write_err(&path)(e.to_string()))?;
+        serde_json::to_string_pretty(&summary).map_err(|e| write_err(path)(e.to_string()))?;
     text.push('\n');
-    write_atomically(&path, text.as_bytes()).map_err(|e| write_err(&path)(e.to_string()))?;
-    write_previews(out, recon, magnitude)
+    write_atomically(path, text.as_bytes()).map_err(|e| write_err(path)(e.to_string()))
 }
 
 /// Top (x–y, colour = height) and side (x–z, colour = point count) views of the points, and
