@@ -256,7 +256,18 @@ pub fn image_volume(
         config.method == Method::Mmnorm && config.unit_candidates && config.spectral_normals;
     let (image, profiles, votes, imaging) = match lattice {
         Ok(lattice) => {
-            let rma = rma_image(capture, &grid, &lattice, want_votes, quiet);
+            let mut rma = rma_image(capture, &grid, &lattice, want_votes, quiet);
+            if core != Core::whole(&grid) {
+                // The transform's gate and kz grid follow the grid's extent, so the core is
+                // imaged on its own too and keeps that image: the margin adds voxels around
+                // the unmargined image without changing it.
+                let inner = rma_image(capture, &core.grid(&grid), &lattice, want_votes, quiet);
+                core.paste(&grid, &mut rma.image, &inner.image);
+                if let (Some(votes), Some(inner_votes)) = (rma.votes.as_mut(), &inner.votes) {
+                    core.paste(&grid, votes, inner_votes);
+                }
+                rma.report = inner.report;
+            }
             let reason = format!(
                 "the phase centres form a {}×{} raster of {:.3}×{:.3} mm (largest snap {:.3} mm)",
                 lattice.dims[0],
