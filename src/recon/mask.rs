@@ -237,6 +237,26 @@ pub fn oriented_box_m3(mask: &[bool], grid: &VoxelGrid) -> f64 {
 mod tests {
     use super::*;
 
+    /// [`li_mask`] over the whole grid, with the 5 % floor and 1000 iterations.
+    fn whole_mask(
+        magnitude: &[f32],
+        g: &VoxelGrid,
+        li_voxels: LiVoxels,
+        exponents: &[f64],
+        max_box_m3: f64,
+    ) -> Result<Mask, MaskError> {
+        li_mask(
+            magnitude,
+            g,
+            &Core::whole(g),
+            0.05,
+            li_voxels,
+            exponents,
+            1000,
+            max_box_m3,
+        )
+    }
+
     #[test]
     fn power_matches_powf() {
         for e in [2.0, 2.5, 3.5, 4.0, 1.7] {
@@ -271,17 +291,7 @@ mod tests {
                 }
             }
         }
-        let m = li_mask(
-            &magnitude,
-            &g,
-            &Core::whole(&g),
-            0.05,
-            LiVoxels::All,
-            &[2.0],
-            1000,
-            1.0,
-        )
-        .unwrap();
+        let m = whole_mask(&magnitude, &g, LiVoxels::All, &[2.0], 1.0).unwrap();
         assert_eq!(m.mask.iter().filter(|&&x| x).count(), 5 * 6 * 3);
         assert!(m.attempts[0].accepted);
         // 5 × 6 × 3 voxels of 1 cm: the box is 0.05 × 0.06 × 0.03 m.
@@ -309,17 +319,7 @@ mod tests {
     fn the_threshold_above_the_floor_does_not_depend_on_empty_space() {
         let threshold = |empty: usize, voxels: LiVoxels| {
             let (magnitude, g) = object_in_space(empty);
-            let m = li_mask(
-                &magnitude,
-                &g,
-                &Core::whole(&g),
-                0.05,
-                voxels,
-                &[2.0],
-                1000,
-                1.0,
-            )
-            .unwrap();
+            let m = whole_mask(&magnitude, &g, voxels, &[2.0], 1.0).unwrap();
             let t = m.attempts[0].threshold.unwrap();
             println!(
                 "{voxels:?}, {empty} empty voxels: threshold {t:.5}, mask {}",
@@ -400,17 +400,7 @@ mod tests {
         for (v, m) in magnitude.iter_mut().enumerate() {
             *m = 0.5 + 0.5 * ((v * 7919) % 101) as f32 / 101.0;
         }
-        let m = li_mask(
-            &magnitude,
-            &g,
-            &Core::whole(&g),
-            0.05,
-            LiVoxels::All,
-            &[2.0, 4.0],
-            1000,
-            1e-9,
-        )
-        .unwrap();
+        let m = whole_mask(&magnitude, &g, LiVoxels::All, &[2.0, 4.0], 1e-9).unwrap();
         assert!(m.attempts.iter().all(|a| !a.accepted));
         let smallest = m
             .attempts
@@ -425,17 +415,7 @@ mod tests {
             .unwrap();
         assert_eq!(used, smallest);
         assert_eq!(
-            li_mask(
-                &[0.0; 8],
-                &grid([2, 2, 2]),
-                &Core::whole(&grid([2, 2, 2])),
-                0.05,
-                LiVoxels::All,
-                &[2.0],
-                10,
-                1.0
-            )
-            .unwrap_err(),
+            whole_mask(&[0.0; 8], &grid([2, 2, 2]), LiVoxels::All, &[2.0], 1.0).unwrap_err(),
             MaskError::EmptyImage
         );
     }
