@@ -163,7 +163,9 @@ impl Client {
     fn events_until(&mut self, until: impl Fn(&Value) -> bool) -> Vec<Value> {
         let mut seen = Vec::new();
         loop {
-            let e = self.next().unwrap();
+            let e = self.next().unwrap_or_else(|err| {
+                panic!("no event within the client's read timeout ({err}); events so far: {seen:?}")
+            });
             let done = until(&e);
             seen.push(e);
             if done {

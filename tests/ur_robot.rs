@@ -3,6 +3,7 @@
 
 use std::net::SocketAddr;
 use std::sync::atomic::AtomicBool;
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 
 use mmnormd::ur::clock::{ClockConfig, ClockMapper};
@@ -13,6 +14,20 @@ use mmnormd::ur::rtde::{RtdeClient, RtdeConfig, RtdeEvent, Value};
 use mmnormd::ur::sim::{Faults, UrSim, UrSimConfig};
 
 const LAMBDA_M: f64 = 0.003_868;
+
+/// The tests that bound a latency hold this exclusively and the others share it, so that no
+/// other test of this binary loads the 2 cores while one of them measures the scheduler.
+static TIMING: RwLock<()> = RwLock::new(());
+
+/// For a test that measures a latency: runs alone within this binary.
+fn timing_alone() -> RwLockWriteGuard<'static, ()> {
+    TIMING.write().unwrap_or_else(|p| p.into_inner())
+}
+
+/// For the other tests: run alongside each other, never alongside a timing test.
+fn untimed() -> RwLockReadGuard<'static, ()> {
+    TIMING.read().unwrap_or_else(|p| p.into_inner())
+}
 
 fn any_port() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], 0))
@@ -63,6 +78,7 @@ fn small_spec() -> ScanSpec {
 
 #[test]
 fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     // A generous stall limit: this test is about completeness, not stall detection, and must not
     // reconnect because a loaded CI machine scheduled a thread late.
@@ -134,6 +150,7 @@ fn a_full_raster_is_driven_in_order_with_a_complete_500_hz_pose_stream() {
 
 #[test]
 fn an_over_speed_spec_is_refused_before_any_motion() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let spec = ScanSpec {
         speed_m_per_s: 0.4,
@@ -170,6 +187,7 @@ fn next_event(
 /// detector counts periods of whatever frequency was negotiated.
 #[test]
 fn a_stall_is_flagged_three_periods_after_the_last_package() {
+    let _timing = timing_alone();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let config = RtdeConfig {
         frequency_hz: 50.0,
@@ -221,6 +239,7 @@ fn a_stall_is_flagged_three_periods_after_the_last_package() {
 
 #[test]
 fn a_killed_and_restarted_server_is_rejoined() {
+    let _timing = timing_alone();
     let mut sim = sim(UrSimConfig::default(), Faults::default());
     let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
     next_event(&client, Duration::from_secs(5), |e| {
@@ -260,6 +279,7 @@ fn a_killed_and_restarted_server_is_rejoined() {
 
 #[test]
 fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
+    let _timing = timing_alone();
     let config = UrSimConfig {
         protective_stop: Some((1, 0.4)),
         ..UrSimConfig::default()
@@ -307,6 +327,7 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
 
 #[test]
 fn local_mode_is_a_clear_error() {
+    let _timing = untimed();
     let config = UrSimConfig {
         remote_control: false,
         ..UrSimConfig::default()
@@ -334,6 +355,7 @@ fn local_mode_is_a_clear_error() {
 
 #[test]
 fn the_controller_clock_maps_within_0_3_ms_under_drift_and_jitter() {
+    let _timing = timing_alone();
     for ppm in [50.0, -50.0] {
         let config = UrSimConfig {
             clock_offset_s: 1000.0,
@@ -388,6 +410,7 @@ fn the_controller_clock_maps_within_0_3_ms_under_drift_and_jitter() {
 
 #[test]
 fn refused_fields_are_named() {
+    let _timing = untimed();
     let sim = sim(
         UrSimConfig::default(),
         Faults {
@@ -422,6 +445,7 @@ fn refused_fields_are_named() {
 
 #[test]
 fn pause_stops_the_stream_without_a_gap_and_start_resumes_it() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
     next_event(&client, Duration::from_secs(5), |e| {
@@ -442,6 +466,7 @@ fn pause_stops_the_stream_without_a_gap_and_start_resumes_it() {
 
 #[test]
 fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let spec = small_spec();
     let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
@@ -493,6 +518,7 @@ fn the_rtde_watchdog_stops_the_arm_when_the_client_dies() {
 
 #[test]
 fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("rtde.csv");
@@ -523,6 +549,7 @@ fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
 
 #[test]
 fn a_protocol_1_controller_is_spoken_to_in_protocol_1() {
+    let _timing = untimed();
     let sim = sim(
         UrSimConfig::default(),
         Faults {
@@ -570,6 +597,7 @@ fn a_protocol_1_controller_is_spoken_to_in_protocol_1() {
 
 #[test]
 fn a_client_that_stops_reading_is_dropped_after_10_s() {
+    let _timing = untimed();
     use mmnormd::ur::rtde::ClientMessage;
     use std::io::{Read as _, Write as _};
     let sim = sim(UrSimConfig::default(), Faults::default());
@@ -619,6 +647,7 @@ fn a_client_that_stops_reading_is_dropped_after_10_s() {
 
 #[test]
 fn power_on_and_brake_release_poll_until_running() {
+    let _timing = untimed();
     let sim = sim(UrSimConfig::default(), Faults::default());
     let mut dashboard =
         DashboardClient::connect(sim.dashboard_addr(), Duration::from_secs(2)).unwrap();
