@@ -3,10 +3,10 @@
 //! leaves `runs/<id>/`: the points of each method (`<method>.ply`), their per-point scores
 //! (`<method>.scores.npy`: point error, relative error, normal cosine), the reconstruction's
 //! summary (`<method>.summary.json`, as `reconstruct` writes it, with the case's exact
-//! parameters) and, written last, `result.json`. A case whose `result.json` carries the same key and was written by the same
-//! build (the running executable's hash, [`build_id`]) is not run again, so an interrupted bench
-//! resumes where it stopped, and a rebuilt one reconstructs every case again from the cached
-//! captures. `--report-only` reads the results of any build.
+//! parameters) and, written last, `result.json`. A case whose `result.json` carries the same
+//! key and was written by the same build (the running executable's hash, [`build_id`]) is not
+//! run again, so an interrupted bench resumes where it stopped, and a rebuilt one reconstructs
+//! every case again from the cached captures. `--report-only` reads the results of any build.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -26,7 +26,9 @@ use crate::eval::{Metrics, PointScores, estimate_normals, evaluate_points};
 use crate::progress::Progress;
 use crate::recon::config::{Isosurface, Method};
 use crate::recon::output::write_summary;
-use crate::recon::{Reconstruction, image_volume, reconstruct_imaged, reconstruct_isosurfaces};
+use crate::recon::{
+    ReconConfig, Reconstruction, image_volume, reconstruct_imaged, reconstruct_isosurfaces,
+};
 use crate::sim::truth::{TOP_GRID_M, top_surface_with_normals};
 
 /// The methods of the paper's evaluation, in report order.
@@ -277,38 +279,28 @@ pub fn run_case(
     stage("image");
     let imaged = image_volume(capture, &case.recon, true)?;
     std::fs::create_dir_all(&dir).map_err(io(&dir))?;
-    let mut outcomes: Vec<(String, Result<Reconstruction, String>)> = Vec::new();
-    let config_of = |name: &str| {
-        let mut config = case.recon.clone();
-        match name {
-            "center" => config.isosurface = Isosurface::Center,
-            "weighted" => config.isosurface = Isosurface::Weighted,
-            "backprojection" => config.method = Method::Backprojection,
-            "interferometric" => config.method = Method::Interferometric,
-            _ => {}
-        }
-        config
-    };
+    // Each method's result with the parameters it ran with (its summary.json records them).
+    let mut outcomes: Vec<(String, ReconConfig, Result<Reconstruction, String>)> = Vec::new();
     stage("mmnorm");
-    match reconstruct_isosurfaces(
-        capture,
-        &case.recon,
-        &imaged,
-        &[
-            Isosurface::Optimized,
-            Isosurface::Center,
-            Isosurface::Weighted,
-        ],
-        true,
-    ) {
+    let ablations = [
+        ("mmnorm", Isosurface::Optimized),
+        ("center", Isosurface::Center),
+        ("weighted", Isosurface::Weighted),
+    ];
+    let isosurfaces = ablations.map(|(_, i)| i);
+    let config_with = |isosurface| ReconConfig {
+        isosurface,
+        ..case.recon.clone()
+    };
+    match reconstruct_isosurfaces(capture, &case.recon, &imaged, &isosurfaces, true) {
         Ok(list) => {
-            for (name, r) in ["mmnorm", "center", "weighted"].into_iter().zip(list) {
-                outcomes.push((name.into(), Ok(r)));
+            for ((name, isosurface), r) in ablations.into_iter().zip(list) {
+                outcomes.push((name.into(), config_with(isosurface), Ok(r)));
             }
         }
         Err(e) => {
-            for name in ["mmnorm", "center", "weighted"] {
-                outcomes.push((name.into(), Err(e.to_string())));
+            for (name, isosurface) in ablations {
+                outcomes.push((name.into(), config_with(isosurface), Err(e.to_string())));
             }
         }
     }
@@ -317,16 +309,19 @@ pub fn run_case(
         ("backprojection", Method::Backprojection),
         ("interferometric", Method::Interferometric),
     ] {
-        let config = config_of(name);
-        debug_assert_eq!(config.method, method);
+        let config = ReconConfig {
+            method,
+            ..case.recon.clone()
+        };
         let r = reconstruct_imaged(capture, &config, &imaged, true).map_err(|e| e.to_string());
-        outcomes.push((name.into(), r));
+        outcomes.push((name.into(), config, r));
     }
     stage("score");
+    let capture_label = opts.cache_dir.join(&capture_key).display().to_string();
     let mut methods = Vec::new();
     let mut clouds = Vec::new();
     for name in METHODS {
-        let Some((_, outcome)) = outcomes.iter().find(|(n, _)| n == name) else {
+        let Some((_, config, outcome)) = outcomes.iter().find(|(n, _, _)| n == name) else {
             continue;
         };
         let result = match outcome {
@@ -349,8 +344,7 @@ pub fn run_case(
                 let ply = dir.join(format!("{name}.ply"));
                 write_atomically(&ply, &recon.encode_ply())?;
                 let summary = dir.join(format!("{name}.summary.json"));
-                let capture_label = opts.cache_dir.join(&capture_key).display().to_string();
-                write_summary(&summary, &capture_label, &config_of(name), recon)?;
+                write_summary(&summary, &capture_label, config, recon)?;
                 let npy_path = dir.join(format!("{name}.scores.npy"));
                 write_atomically(&npy_path, &npy::encode_f64_rows(&score_rows(&scores)))?;
                 clouds.push((name, recon.points_m.as_slice()));

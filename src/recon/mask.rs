@@ -13,8 +13,8 @@
 //!   converged and exit otherwise, even if an earlier one converged. mmnormd uses the converged
 //!   attempt with the smallest box, and fails only when none converged.
 //!
-//! |S| is divided by its maximum over the core before the exponent; Li's iteration is scale-equivariant, so this
-//! changes nothing but the floating-point range.
+//! |S| is divided by its maximum over the core before the exponent; Li's iteration is
+//! scale-equivariant, so this changes nothing but the floating-point range.
 //!
 //! Li's threshold is computed over every voxel of the volume's core (`recon::volume::Core`) by
 //! default, as the authors compute it over their box. Their box is fixed; mmnormd's core is
@@ -24,10 +24,10 @@
 //! accuracy suite, and the components grew, merged or split (`docs/bench/analysis.md`).
 //! That is why the imaged margin around the core is left out of the threshold: the threshold
 //! is the core's, and applies over the margin too.
-//! [`LiVoxels::AboveFloor`] computes it over the core's voxels above the floor only, which empty space
-//! does not reach. It is not the default: on 11 cases of the suite taken by rule it lowered the
-//! F-score on 6 and raised it on 1 (per-case median 0.87 → 0.78), because the higher threshold
-//! drops the weaker parts of objects such as the pitcher and the cups.
+//! [`LiVoxels::AboveFloor`] computes it over the core's voxels above the floor only, which empty
+//! space does not reach. It is not the default: on 11 cases of the suite taken by rule it
+//! lowered the F-score on 6 and raised it on 1 (per-case median 0.87 → 0.78), because the higher
+//! threshold drops the weaker parts of objects such as the pitcher and the cups.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
@@ -112,7 +112,7 @@ pub fn li_mask(
     max_iterations: usize,
     max_box_m3: f64,
 ) -> Result<Mask, MaskError> {
-    let whole = *core == Core::whole(grid);
+    let whole = core.is_whole(grid);
     let in_core = |v: usize| whole || core.contains(grid, v);
     // The core's peak: the floor, like the threshold, is the core's.
     let peak = (magnitude.par_iter().enumerate())

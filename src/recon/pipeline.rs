@@ -220,7 +220,7 @@ pub fn image_volume(
         grid.voxel_m * 1e3,
         grid.origin_m
     );
-    if core != Core::whole(&grid) {
+    if !core.is_whole(&grid) {
         tracing::info!(
             "volume core: voxels {:?}..{:?}; the rest is the margin",
             core.lo,
@@ -257,7 +257,7 @@ pub fn image_volume(
     let (image, profiles, votes, imaging) = match lattice {
         Ok(lattice) => {
             let mut rma = rma_image(capture, &grid, &lattice, want_votes, quiet);
-            if core != Core::whole(&grid) {
+            if !core.is_whole(&grid) {
                 // The transform's gate and kz grid follow the grid's extent, so the core is
                 // imaged on its own too and keeps that image: the margin adds voxels around
                 // the unmargined image without changing it.
@@ -590,6 +590,9 @@ fn mmnorm_fields(
     // Components that lie in the margin alone are not the echo region's.
     let label = |min_voxels: usize| {
         let labelled = label_6(&with_normal, grid.dims, min_voxels);
+        if imaged.core.is_whole(grid) {
+            return labelled;
+        }
         retain_reaching(labelled, |v| imaged.core.contains(grid, v))
     };
     let mut min_voxels = to_voxels(config.min_component_m3);

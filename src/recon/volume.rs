@@ -41,6 +41,8 @@
 //! The aperture plane is the mean height of the antennas' phase centres; the antennas look down
 //! (−z), as in every capture mmnormd writes.
 
+use std::borrow::Cow;
+
 use num_complex::Complex32;
 use rustfft::FftPlanner;
 
@@ -116,20 +118,31 @@ pub fn grid_for(bounds: [f64; 6], voxel_m: f64) -> Result<VoxelGrid, VolumeError
             axis: ['x', 'y', 'z'][a],
         });
     }
-    let voxels = dims.iter().fold(1usize, |acc, &d| acc.saturating_mul(d));
+    within_limit(
+        VoxelGrid {
+            origin_m: [bounds[0], bounds[2], bounds[4]],
+            voxel_m,
+            dims,
+        },
+        bounds,
+    )
+}
+
+/// `grid` (spanning `bounds`) if it holds at most [`MAX_VOXELS`].
+fn within_limit(grid: VoxelGrid, bounds: [f64; 6]) -> Result<VoxelGrid, VolumeError> {
+    let voxels = grid
+        .dims
+        .iter()
+        .fold(1usize, |acc, &d| acc.saturating_mul(d));
     if voxels > MAX_VOXELS {
         return Err(VolumeError::TooLarge {
             bounds,
-            voxel_m,
+            voxel_m: grid.voxel_m,
             voxels,
             max: MAX_VOXELS,
         });
     }
-    Ok(VoxelGrid {
-        origin_m: [bounds[0], bounds[2], bounds[4]],
-        voxel_m,
-        dims,
-    })
+    Ok(grid)
 }
 
 /// The voxels of a grid that hold the echo region: indices `lo[a]..hi[a]` along each axis. With
@@ -150,6 +163,11 @@ impl Core {
         }
     }
 
+    /// Whether the core is all of `grid` (no margin).
+    pub fn is_whole(&self, grid: &VoxelGrid) -> bool {
+        *self == Core::whole(grid)
+    }
+
     /// Whether flat index `v` of `grid` lies in the core.
     pub fn contains(&self, grid: &VoxelGrid, v: usize) -> bool {
         let [_, ny, nz] = grid.dims;
@@ -166,8 +184,12 @@ impl Core {
         }
     }
 
-    /// The core's values of `values` (C order on `grid`), in C order on [`Core::grid`].
-    pub fn crop<T: Copy>(&self, grid: &VoxelGrid, values: &[T]) -> Vec<T> {
+    /// The core's values of `values` (C order on `grid`), in C order on [`Core::grid`];
+    /// borrowed when the core is the whole grid.
+    pub fn crop<'a, T: Copy>(&self, grid: &VoxelGrid, values: &'a [T]) -> Cow<'a, [T]> {
+        if self.is_whole(grid) {
+            return Cow::Borrowed(values);
+        }
         let [_, ny, nz] = grid.dims;
         let mut out = Vec::with_capacity(self.grid(grid).len());
         for i in self.lo[0]..self.hi[0] {
@@ -176,7 +198,7 @@ impl Core {
                 out.extend_from_slice(&values[row + self.lo[2]..row + self.hi[2]]);
             }
         }
-        out
+        Cow::Owned(out)
     }
 
     /// Writes `inner` (C order on [`Core::grid`]) over the core's voxels of `values` (C order
@@ -248,23 +270,18 @@ pub fn select(
                 b[2 * a] -= grown_m;
                 b[2 * a + 1] += grown_m;
             }
-            let grid = VoxelGrid {
-                origin_m: [b[0], b[2], b[4]],
-                dims: [
-                    core_grid.dims[0] + 2 * n,
-                    core_grid.dims[1] + 2 * n,
-                    core_grid.dims[2],
-                ],
-                ..core_grid
-            };
-            if grid.len() > MAX_VOXELS {
-                return Err(VolumeError::TooLarge {
-                    bounds: b,
-                    voxel_m,
-                    voxels: grid.len(),
-                    max: MAX_VOXELS,
-                });
-            }
+            let grid = within_limit(
+                VoxelGrid {
+                    origin_m: [b[0], b[2], b[4]],
+                    dims: [
+                        core_grid.dims[0] + 2 * n,
+                        core_grid.dims[1] + 2 * n,
+                        core_grid.dims[2],
+                    ],
+                    ..core_grid
+                },
+                b,
+            )?;
             let core = Core {
                 lo: [n, n, 0],
                 hi: [
