@@ -326,6 +326,55 @@ fn a_protective_stop_pauses_the_row_and_is_never_unlocked() {
 }
 
 #[test]
+fn a_watchdog_trip_ends_the_row_at_once_short_of_its_end_and_the_row_can_be_driven_again() {
+    let _timing = timing_alone();
+    // Move 0 is the approach to row 0; move 1 is row 0 itself. From 0.3 s into it the controller
+    // hears nothing from the client, as if the host had stalled.
+    let config = UrSimConfig {
+        input_loss: Some((1, 0.3)),
+        ..UrSimConfig::default()
+    };
+    let sim = sim(config, Faults::default());
+    let mut robot = UrRobot::connect(&addresses(&sim, 50.0)).unwrap();
+    let spec = small_spec();
+    let plan = plan_raster(&spec, LAMBDA_M, 0.003).unwrap();
+    let row = &plan.rows[0];
+    let record = robot
+        .drive_row(row, &spec, &AtomicBool::new(false), &mut |_| {})
+        .unwrap();
+    let decided_s = robot.epoch().elapsed().as_secs_f64();
+    let RowOutcome::StoppedShort { short_of_target_m } = record.outcome else {
+        panic!("expected the row to stop short, got {:?}", record.outcome);
+    };
+    let last = record.samples.last().unwrap();
+    let Value::Vector6d(pose) = last.values[robot.pose_index()] else {
+        panic!("no pose in {last:?}");
+    };
+    let from_pose_m = (0..3)
+        .map(|i| (pose[i] - row.end_pose[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let decided_after_ms = (decided_s - last.host_s) * 1e3;
+    let trips = sim.arm().watchdog_trips;
+    println!(
+        "watchdog trip: the row ended {:.1} mm short of its end ({:.1} mm long), decided {decided_after_ms:.2} ms after the package that showed the program stopped; {trips} trip",
+        short_of_target_m * 1e3,
+        (row.end_pose[0] - row.start_pose[0]).abs() * 1e3
+    );
+    assert_eq!(trips, 1);
+    assert!((short_of_target_m - from_pose_m).abs() < 1e-9);
+    // At most 0.4 s of a row longer than 1 s: the arm stopped well short.
+    assert!(short_of_target_m > 0.05, "{short_of_target_m}");
+    // Noticed at the package, not after the move's timeout of seconds.
+    assert!(decided_after_ms < 20.0, "{decided_after_ms} ms");
+    let again = robot
+        .drive_row(row, &spec, &AtomicBool::new(false), &mut |_| {})
+        .unwrap();
+    assert_eq!(again.outcome, RowOutcome::Completed);
+    assert_eq!(sim.arm().watchdog_trips, 1);
+}
+
+#[test]
 fn local_mode_is_a_clear_error() {
     let _timing = untimed();
     let config = UrSimConfig {

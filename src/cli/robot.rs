@@ -208,6 +208,10 @@ pub struct SimRobotArgs {
     /// A protective stop SECONDS into move number MOVE (0-based): `MOVE:SECONDS`.
     #[arg(long)]
     protective_stop: Option<String>,
+    /// Every RTDE input package lost from SECONDS into move number MOVE until it ends, so a
+    /// program's watchdog trips: `MOVE:SECONDS`.
+    #[arg(long)]
+    input_loss: Option<String>,
     /// Input registers 0–23 answer IN_USE, as with a fieldbus enabled.
     #[arg(long)]
     fieldbus: bool,
@@ -215,21 +219,23 @@ pub struct SimRobotArgs {
     seed: u64,
 }
 
-pub fn sim_robot(a: SimRobotArgs) -> Result<()> {
-    let protective_stop = match &a.protective_stop {
-        None => None,
-        Some(text) => {
-            let (m, s) = text
-                .split_once(':')
-                .with_context(|| format!("--protective-stop {text}: expected MOVE:SECONDS"))?;
-            Some((
-                m.parse()
-                    .with_context(|| format!("--protective-stop move `{m}`"))?,
-                s.parse()
-                    .with_context(|| format!("--protective-stop seconds `{s}`"))?,
-            ))
-        }
+/// `MOVE:SECONDS` of the fault flag `flag`.
+fn move_and_seconds(flag: &str, text: Option<&str>) -> Result<Option<(u64, f64)>> {
+    let Some(text) = text else {
+        return Ok(None);
     };
+    let (m, s) = text
+        .split_once(':')
+        .with_context(|| format!("{flag} {text}: expected MOVE:SECONDS"))?;
+    Ok(Some((
+        m.parse().with_context(|| format!("{flag} move `{m}`"))?,
+        s.parse().with_context(|| format!("{flag} seconds `{s}`"))?,
+    )))
+}
+
+pub fn sim_robot(a: SimRobotArgs) -> Result<()> {
+    let protective_stop = move_and_seconds("--protective-stop", a.protective_stop.as_deref())?;
+    let input_loss = move_and_seconds("--input-loss", a.input_loss.as_deref())?;
     let at = |port| SocketAddr::from(([127, 0, 0, 1], port));
     let config = UrSimConfig {
         rtde: at(a.rtde_port),
@@ -239,6 +245,7 @@ pub fn sim_robot(a: SimRobotArgs) -> Result<()> {
         clock_offset_s: a.clock_offset_s,
         clock_drift_ppm: a.clock_drift_ppm,
         protective_stop,
+        input_loss,
         ..UrSimConfig::default()
     };
     let faults = Faults {

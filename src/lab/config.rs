@@ -184,6 +184,9 @@ pub struct SimRobotConfig {
     /// Each RTDE package leaves up to this late (uniform), milliseconds.
     pub jitter_ms: f64,
     pub seed: u64,
+    /// The controller loses mmnormd's RTDE inputs during one move, so the row program's
+    /// watchdog trips: a host stall, as the robot sees it. Off unless set.
+    pub input_loss: Option<InputLoss>,
 }
 
 impl Default for SimRobotConfig {
@@ -193,8 +196,18 @@ impl Default for SimRobotConfig {
             clock_drift_ppm: 30.0,
             jitter_ms: 0.5,
             seed: 0,
+            input_loss: None,
         }
     }
+}
+
+/// `[sim.robot.input_loss]`: every RTDE input package is lost from `after_s` into arm move
+/// number `move_index` (0-based, counting every `movel` since start-up) until that move ends.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputLoss {
+    pub move_index: u64,
+    pub after_s: f64,
 }
 
 /// The `[sim]` section.
@@ -308,6 +321,14 @@ impl SimConfig {
                 r.jitter_ms
             ));
         }
+        if let Some(loss) = r.input_loss
+            && !(loss.after_s.is_finite() && loss.after_s >= 0.0)
+        {
+            return Err(format!(
+                "sim.robot.input_loss.after_s = {} must be a finite number ≥ 0",
+                loss.after_s
+            ));
+        }
         Ok(())
     }
 }
@@ -413,6 +434,18 @@ mod tests {
                 .contains("sim.cli_faults.stall_ms = 90000 is above 60000"),
             "{e}"
         );
+        let e = LabConfig::parse(
+            "[sim.robot.input_loss]\nmove_index = 3\nafter_s = -0.5\n",
+            p,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("sim.robot.input_loss.after_s = -0.5 must be a finite number ≥ 0"),
+            "{e}"
+        );
+        let e = LabConfig::parse("[sim.robot.input_loss]\nafter_s = 0.3\n", p).unwrap_err();
+        assert!(e.to_string().contains("move_index"), "{e}");
     }
 
     #[test]

@@ -531,7 +531,7 @@ pub fn replay_capture(
             arrivals: rec.arrivals.clone(),
             rtde: rec.rtde.clone(),
             report: Default::default(),
-            outcome: crate::ur::robot::RowOutcome::Completed,
+            outcome: rec.outcome.clone(),
             rtde_gaps: rec.rtde_gaps,
         };
         let aligned = align_recording(&lab, &setup, &names, &recording).map_err(|source| {
@@ -540,7 +540,7 @@ pub fn replay_capture(
                 source,
             }
         })?;
-        let problem = row_problem(&lab, recording.frame_loss(), rec.rtde_gaps);
+        let problem = row_problem(&lab, &recording);
         if problem.is_none() || rec.attempt == lab.recording.max_row_retries {
             kept.push((recording, aligned));
         }

@@ -1,8 +1,9 @@
 //! One scan (issue: scan pipeline): for each raster row, DCA1000 record start, `sensorStart`,
 //! the row's `movel` with RTDE streaming, stop and flush, then time alignment
-//! ([`crate::align`]). A row whose frame loss exceeds `recording.max_frame_loss`, or that had an
-//! RTDE gap, is scanned again up to `recording.max_row_retries` times, then reported and kept
-//! for what it holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
+//! ([`crate::align`]). A row whose frame loss exceeds `recording.max_frame_loss`, that had an
+//! RTDE gap, or whose program ended short of the row's end (the RTDE watchdog tripped), is
+//! scanned again up to `recording.max_row_retries` times, then reported and kept for what it
+//! holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
 //! judged, so nothing recorded is lost. The kept frames become the [`Capture`].
 //!
 //! The devices come in through their traits; this module never opens a socket.
@@ -63,6 +64,12 @@ pub enum ScanError {
         "row {row}: the arm reported a safety stop ({safety}); the scan is paused for a person"
     )]
     SafetyStop { row: usize, safety: String },
+    #[error(
+        "row {row}: the arm's program ended {:.1} mm short of the row's start, with no safety \
+         stop (stopped from the pendant or the Dashboard?)",
+        short_of_target_m * 1e3
+    )]
+    StoppedShort { row: usize, short_of_target_m: f64 },
     #[error("aborted at row {row}")]
     Aborted { row: usize },
     #[error("recording: {0}")]
@@ -78,6 +85,7 @@ impl ScanError {
             | ScanError::Radar { row, .. }
             | ScanError::Align { row, .. }
             | ScanError::SafetyStop { row, .. }
+            | ScanError::StoppedShort { row, .. }
             | ScanError::Aborted { row } => Some(*row),
             _ => None,
         }
@@ -342,7 +350,7 @@ pub fn run_scan(
                 }
             };
             log.row(&rec, &aligned).map_err(ScanError::Log)?;
-            let problem = row_problem(lab, rec.frame_loss(), rec.rtde_gaps);
+            let problem = row_problem(lab, &rec);
             let accepted = problem.is_none() || last_attempt;
             let summary =
                 RowSummary::of(&rec, rows, aligned.frames.len(), problem.clone(), accepted);
@@ -456,22 +464,30 @@ impl RecordSink for RowSink<'_, '_> {
 }
 
 /// Why a row attempt must be scanned again, if it must: frame loss above
-/// `recording.max_frame_loss`, or an RTDE gap.
-pub fn row_problem(lab: &LabConfig, frame_loss: f64, rtde_gaps: usize) -> Option<String> {
-    if frame_loss > lab.recording.max_frame_loss {
+/// `recording.max_frame_loss`, an RTDE gap, or a program that ended short of the row's end.
+pub fn row_problem(lab: &LabConfig, rec: &RowRecording) -> Option<String> {
+    let frame_loss = rec.frame_loss();
+    if let RowOutcome::StoppedShort { short_of_target_m } = rec.outcome {
+        Some(format!(
+            "the arm stopped {:.1} mm short of the row's end (the RTDE watchdog tripped, or the \
+             program was stopped)",
+            short_of_target_m * 1e3
+        ))
+    } else if frame_loss > lab.recording.max_frame_loss {
         Some(format!(
             "frame loss {:.2} % above recording.max_frame_loss = {:.2} %",
             frame_loss * 100.0,
             lab.recording.max_frame_loss * 100.0
         ))
-    } else if rtde_gaps > 0 {
-        Some(format!("{rtde_gaps} RTDE gap(s) during the row"))
+    } else if rec.rtde_gaps > 0 {
+        Some(format!("{} RTDE gap(s) during the row", rec.rtde_gaps))
     } else {
         None
     }
 }
 
-/// An arm move that did not complete, as the scan's error.
+/// The error for an arm move that did not complete; a row that stopped short is judged by
+/// [`row_problem`] instead.
 fn completed(row: usize, outcome: &RowOutcome) -> Result<(), ScanError> {
     match outcome {
         RowOutcome::Completed => Ok(()),
@@ -479,6 +495,10 @@ fn completed(row: usize, outcome: &RowOutcome) -> Result<(), ScanError> {
         RowOutcome::SafetyStop { safety, .. } => Err(ScanError::SafetyStop {
             row,
             safety: safety.name().into(),
+        }),
+        RowOutcome::StoppedShort { short_of_target_m } => Err(ScanError::StoppedShort {
+            row,
+            short_of_target_m: *short_of_target_m,
         }),
     }
 }
@@ -598,7 +618,9 @@ fn record_row(
             message,
         });
     }
-    completed(index, &record.outcome)?;
+    if !matches!(record.outcome, RowOutcome::StoppedShort { .. }) {
+        completed(index, &record.outcome)?;
+    }
     Ok(RowRecording {
         row: index,
         attempt,

@@ -85,6 +85,7 @@ impl SimLab {
                 clock_offset_s: lab.sim.robot.clock_offset_s,
                 clock_drift_ppm: lab.sim.robot.clock_drift_ppm,
                 protective_stop: None,
+                input_loss: lab.sim.robot.input_loss.map(|l| (l.move_index, l.after_s)),
             },
             Faults {
                 seed: lab.sim.robot.seed,

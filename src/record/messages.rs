@@ -31,7 +31,7 @@ pub const RTDE: (&str, &str, &str) = (
 pub const ROWS: (&str, &str, &str) = (
     "/scan/rows",
     "mmnormd.RowResult",
-    r#"{"type":"object","title":"mmnormd.RowResult","description":"One row attempt: its plan, packet statistics, clock fits, alignment counts and verdict.","properties":{"row":{"type":"integer"},"attempt":{"type":"integer"},"direction":{"type":"integer"},"usable_x_m":{"type":"array"},"frames":{"type":"integer"},"kept":{"type":"integer"},"packets":{"type":"object"},"dropped":{"type":"object"},"radar_fit":{"type":"object"},"controller_fit":{"type":"object"}},"required":["row","attempt"]}"#,
+    r#"{"type":"object","title":"mmnormd.RowResult","description":"One row attempt: its plan, packet statistics, clock fits, alignment counts and verdict.","properties":{"row":{"type":"integer"},"attempt":{"type":"integer"},"direction":{"type":"integer"},"usable_x_m":{"type":"array"},"frames":{"type":"integer"},"kept":{"type":"integer"},"frame_loss":{"type":"number"},"rtde_gaps":{"type":"integer"},"outcome":{"type":["string","object"],"description":"How the arm's move ended: \"Completed\", or {\"StoppedShort\":{\"short_of_target_m\":…}} for a row scanned again"},"packets":{"type":"object"},"dropped":{"type":"object"},"radar_fit":{"type":"object"},"controller_fit":{"type":"object"}},"required":["row","attempt"]}"#,
 );
 
 /// Foxglove topics.

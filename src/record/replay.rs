@@ -12,6 +12,7 @@ use serde::Deserialize;
 use super::messages;
 use super::recover::{Item, ReadError, ReadStop, for_each_record};
 use crate::dca1000::packet::PacketArrival;
+use crate::ur::robot::RowOutcome;
 use crate::ur::rtde::{Sample, Value};
 
 /// One row attempt as recorded.
@@ -22,6 +23,8 @@ pub struct RecordedRow {
     pub direction: i8,
     pub usable_x_m: (f64, f64),
     pub rtde_gaps: usize,
+    /// How the arm's move ended.
+    pub outcome: RowOutcome,
     pub frames: Vec<Vec<u8>>,
     pub complete: Vec<bool>,
     pub arrivals: Vec<PacketArrival>,
@@ -75,6 +78,9 @@ struct RowMessage {
     direction: i8,
     usable_x_m: (f64, f64),
     rtde_gaps: usize,
+    /// Absent from recordings made before a row could end short; they kept only completed rows.
+    #[serde(default)]
+    outcome: RowOutcome,
 }
 
 /// The attempt `(row, attempt)`, created in start order when first seen.
@@ -163,6 +169,7 @@ pub fn read_scan(path: &Path) -> Result<RecordedScan, ReadError> {
                         r.direction = m.direction;
                         r.usable_x_m = m.usable_x_m;
                         r.rtde_gaps = m.rtde_gaps;
+                        r.outcome = m.outcome;
                         r.finished = true;
                     }
                     _ => {}

@@ -57,7 +57,7 @@ impl RobotMode {
 }
 
 /// `safetystatus` / `safety_mode` values (C4).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum SafetyStatus {
     Normal,
     Reduced,

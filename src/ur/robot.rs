@@ -4,10 +4,13 @@
 //! A row is driven in two moves: a `movel` to the row's start, then a small program that arms
 //! the RTDE watchdog on `input_int_register_24` (at least 10 Hz, action "stop") and runs the
 //! row's `movel`. While a row runs, the client writes an incrementing counter to that register
-//! every 50 ms, so the robot stops by itself if mmnormd dies. A row is confirmed finished through
-//! RTDE: `runtime_state` back to STOPPED after PLAYING, and the pose at the target. A safety stop
-//! in the stream (protective stop, safeguard stop, e-stop) ends the row at the first package
-//! that shows it, and nothing here ever unlocks it.
+//! every [`WATCHDOG_KICK`], so the robot stops by itself if mmnormd dies or stalls for longer
+//! than the watchdog's 100 ms. A row is confirmed finished through RTDE: `runtime_state` back to
+//! STOPPED after PLAYING, and the pose at the target. A program that ends with the pose short of
+//! the target (a watchdog trip, a stop from the pendant) ends the row at that package as
+//! [`RowOutcome::StoppedShort`], for the scan to drive it again. A safety stop in the stream
+//! (protective stop, safeguard stop, e-stop) ends the row at the first package that shows it,
+//! and nothing here ever unlocks it.
 
 use std::io::Write as _;
 use std::net::{SocketAddr, TcpStream};
@@ -49,8 +52,10 @@ pub struct RobotStatus {
 }
 
 /// How a row ended.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum RowOutcome {
+    /// The default, for recordings made before the outcome was written.
+    #[default]
     Completed,
     /// A safety stop appeared in the stream; the scan must pause. It is never unlocked here.
     SafetyStop {
@@ -62,6 +67,12 @@ pub enum RowOutcome {
     },
     /// Stopped on request (`abort`) with `stopl` before the move ended.
     Aborted,
+    /// The program ended (`runtime_state` STOPPED after PLAYING) with the TCP short of the
+    /// target and no safety stop: the RTDE watchdog tripped, or someone stopped the program.
+    StoppedShort {
+        /// From the TCP where the program ended to the target, metres.
+        short_of_target_m: f64,
+    },
 }
 
 /// One driven row: its RTDE samples and how it ended.
@@ -136,6 +147,14 @@ struct FieldIndex {
 
 /// Pose within this distance of a target counts as at the target, metres.
 const AT_TARGET_M: f64 = 0.0005;
+
+/// How often a running move writes the watchdog register. The programs ask for at least 10 Hz,
+/// so one kick may be late by up to 80 ms (a busy host) before the robot stops.
+pub const WATCHDOG_KICK: Duration = Duration::from_millis(20);
+
+/// `runtime_state` codes (protocols.md C4).
+const RUNTIME_STOPPED: i64 = 1;
+const RUNTIME_PLAYING: i64 = 2;
 
 fn pose_of(s: &Sample, i: usize) -> Option<[f64; 6]> {
     match s.values.get(i) {
@@ -282,7 +301,7 @@ impl UrRobot {
                 self.await_standstill(samples, on_sample)?;
                 return Ok(RowOutcome::Aborted);
             }
-            if last_kick.elapsed() >= Duration::from_millis(50) {
+            if last_kick.elapsed() >= WATCHDOG_KICK {
                 self.kick_watchdog();
                 last_kick = Instant::now();
             }
@@ -302,14 +321,20 @@ impl UrRobot {
                     return Ok(outcome);
                 }
                 let runtime = int_of(s, self.at.runtime).unwrap_or(0);
-                seen_playing |= runtime == 2;
-                let at_target =
-                    pose_of(s, self.at.pose).is_some_and(|p| distance_m(&p, target) < AT_TARGET_M);
+                let ended = seen_playing && runtime == RUNTIME_STOPPED;
+                seen_playing |= runtime == RUNTIME_PLAYING;
+                let to_target_m = pose_of(s, self.at.pose).map(|p| distance_m(&p, target));
+                let at_target = to_target_m.is_some_and(|d| d < AT_TARGET_M);
                 // PLAYING can only be missed by a move shorter than a period; allow for it after
                 // 200 ms.
                 let settled = seen_playing || start.elapsed() > Duration::from_millis(200);
-                if at_target && runtime == 1 && settled {
+                if at_target && runtime == RUNTIME_STOPPED && settled {
                     return Ok(RowOutcome::Completed);
+                }
+                if ended && let Some(short_of_target_m) = to_target_m {
+                    // The row's data ends at the package that showed the program ended.
+                    samples.truncate(k + 1);
+                    return Ok(RowOutcome::StoppedShort { short_of_target_m });
                 }
             }
             checked = samples.len();

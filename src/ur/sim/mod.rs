@@ -52,6 +52,9 @@ pub struct UrSimConfig {
     pub clock_drift_ppm: f64,
     /// `(move index, seconds into it)`: a protective stop.
     pub protective_stop: Option<(u64, f64)>,
+    /// `(move index, seconds into it)`: from then until the move ends, every RTDE input package
+    /// is lost (so a program's watchdog trips).
+    pub input_loss: Option<(u64, f64)>,
 }
 
 impl Default for UrSimConfig {
@@ -66,6 +69,7 @@ impl Default for UrSimConfig {
             clock_offset_s: 0.0,
             clock_drift_ppm: 0.0,
             protective_stop: None,
+            input_loss: None,
         }
     }
 }
@@ -177,6 +181,7 @@ impl UrSim {
         arm.clock_offset_s = config.clock_offset_s;
         arm.clock_drift_ppm = config.clock_drift_ppm;
         arm.protective_stop = config.protective_stop;
+        arm.input_loss = config.input_loss;
         let arm = Arc::new(Mutex::new(arm));
         let faults = Arc::new(Mutex::new(faults));
         let rtde = Self::rtde_server(config.rtde, &arm, &faults)?;

@@ -100,6 +100,9 @@ pub struct ArmState {
     pub clock_drift_ppm: f64,
     /// Seconds after the start of this move number (0-based) at which a protective stop fires.
     pub protective_stop: Option<(u64, f64)>,
+    /// Seconds after the start of this move number (0-based) from which every RTDE input
+    /// package is lost until the move ends: a host that stalls, as the controller sees it.
+    pub input_loss: Option<(u64, f64)>,
     /// The running program's RTDE watchdog.
     pub watchdog: Option<Watchdog>,
     pub watchdog_trips: u64,
@@ -137,6 +140,7 @@ impl ArmState {
             clock_offset_s: 0.0,
             clock_drift_ppm: 0.0,
             protective_stop: None,
+            input_loss: None,
             watchdog: None,
             watchdog_trips: 0,
             track: VecDeque::new(),
@@ -182,6 +186,12 @@ impl ArmState {
         now: Instant,
     ) {
         let now_s = self.host_s(now);
+        if let (Some((index, after_s)), Some(m)) = (self.input_loss, &self.motion)
+            && self.moves_started == index + 1
+            && now_s >= m.started_s + after_s
+        {
+            return;
+        }
         for (name, value) in names.iter().zip(values) {
             if let (Some(i), crate::ur::rtde::Value::Int32(v)) = (
                 name.strip_prefix("input_int_register_")
