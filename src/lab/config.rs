@@ -94,6 +94,10 @@ pub struct RecordingConfig {
     pub max_frame_loss: f64,
     /// Rescans of a row before the scan reports it and goes on.
     pub max_row_retries: u32,
+    /// A row whose radar or controller clock fit leaves a bin's earliest arrival more than this
+    /// off its line is scanned again: the host stamped arrivals late (a busy CPU), so the
+    /// frames' poses cannot be trusted. Seconds.
+    pub max_clock_residual_s: f64,
     /// MCAP chunks close after this much data time, seconds (crash loss is at most one chunk).
     pub chunk_seconds: f64,
     /// … or this many uncompressed bytes, whichever comes first.
@@ -106,6 +110,7 @@ impl Default for RecordingConfig {
             data_dir: PathBuf::from("captures"),
             max_frame_loss: 0.01,
             max_row_retries: 2,
+            max_clock_residual_s: 0.002,
             chunk_seconds: 0.25,
             chunk_bytes: 1 << 20,
         }
@@ -118,6 +123,12 @@ impl RecordingConfig {
             return Err(format!(
                 "recording.max_frame_loss = {} must lie in 0..=1",
                 self.max_frame_loss
+            ));
+        }
+        if !(self.max_clock_residual_s.is_finite() && self.max_clock_residual_s > 0.0) {
+            return Err(format!(
+                "recording.max_clock_residual_s = {} must be a finite number above 0",
+                self.max_clock_residual_s
             ));
         }
         if !(self.chunk_seconds.is_finite()
@@ -442,6 +453,12 @@ mod tests {
         assert!(
             e.to_string()
                 .contains("sim.robot.input_loss.after_s = -0.5 must be a finite number ≥ 0"),
+            "{e}"
+        );
+        let e = LabConfig::parse("[recording]\nmax_clock_residual_s = 0.0\n", p).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("recording.max_clock_residual_s = 0 must be a finite number above 0"),
             "{e}"
         );
         let e = LabConfig::parse("[sim.robot.input_loss]\nafter_s = 0.3\n", p).unwrap_err();

@@ -519,7 +519,10 @@ pub fn replay_capture(
             .map_err(|e| JobError::Request(format!("the recorded scan spec: {e}")))?;
     let setup = ScanSetup::with_profile(&lab, spec, profile)?;
     let names = replayed_output_names();
-    let mut kept = Vec::new();
+    // Per row, in row order: the first attempt without a problem, else the last one recorded.
+    // That is the attempt the live run kept (it stops at the first clean attempt, and keeps its
+    // last one otherwise), also for a recording judged by older, laxer rules.
+    let mut kept: BTreeMap<usize, (RowRecording, RowAlignment, bool)> = BTreeMap::new();
     for rec in scan.rows.iter().filter(|r| r.finished) {
         let recording = RowRecording {
             row: rec.row,
@@ -540,11 +543,13 @@ pub fn replay_capture(
                 source,
             }
         })?;
-        let problem = row_problem(&lab, &recording);
-        if problem.is_none() || rec.attempt == lab.recording.max_row_retries {
-            kept.push((recording, aligned));
+        let clean = row_problem(&lab, &recording, &aligned).is_none();
+        if !kept.get(&rec.row).is_some_and(|k| k.2) {
+            kept.insert(rec.row, (recording, aligned, clean));
         }
     }
+    let kept: Vec<(RowRecording, RowAlignment)> =
+        kept.into_values().map(|(r, a, _)| (r, a)).collect();
     let capture = build_capture(&lab, &setup, &kept);
     Ok((lab, setup, capture))
 }

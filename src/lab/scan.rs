@@ -1,9 +1,9 @@
 //! One scan (issue: scan pipeline): for each raster row, DCA1000 record start, `sensorStart`,
 //! the row's `movel` with RTDE streaming, stop and flush, then time alignment
 //! ([`crate::align`]). A row whose frame loss exceeds `recording.max_frame_loss`, that had an
-//! RTDE gap, or whose program ended short of the row's end (the RTDE watchdog tripped), is
-//! scanned again up to `recording.max_row_retries` times, then reported and kept for what it
-//! holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
+//! RTDE gap, whose program ended short of the row's end (the RTDE watchdog tripped), or whose
+//! clock fits stray beyond `recording.max_clock_residual_s` ([`row_problem`]) is scanned again
+//! up to `recording.max_row_retries` times, then reported and kept for what it holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
 //! judged, so nothing recorded is lost. The kept frames become the [`Capture`].
 //!
 //! The devices come in through their traits; this module never opens a socket.
@@ -350,7 +350,7 @@ pub fn run_scan(
                 }
             };
             log.row(&rec, &aligned).map_err(ScanError::Log)?;
-            let problem = row_problem(lab, &rec);
+            let problem = row_problem(lab, &rec, &aligned);
             let accepted = problem.is_none() || last_attempt;
             let summary =
                 RowSummary::of(&rec, rows, aligned.frames.len(), problem.clone(), accepted);
@@ -463,10 +463,19 @@ impl RecordSink for RowSink<'_, '_> {
     }
 }
 
-/// Why a row attempt must be scanned again, if it must: frame loss above
-/// `recording.max_frame_loss`, an RTDE gap, or a program that ended short of the row's end.
-pub fn row_problem(lab: &LabConfig, rec: &RowRecording) -> Option<String> {
+/// Why a row attempt must be scanned again, if it must: a program that ended short of the
+/// row's end, frame loss above `recording.max_frame_loss`, an RTDE gap, or a clock fit whose
+/// largest residual exceeds `recording.max_clock_residual_s`.
+pub fn row_problem(lab: &LabConfig, rec: &RowRecording, aligned: &RowAlignment) -> Option<String> {
     let frame_loss = rec.frame_loss();
+    let limit_s = lab.recording.max_clock_residual_s;
+    let strayed = [
+        ("radar", &aligned.radar_fit),
+        ("controller", &aligned.controller_fit),
+    ]
+    .into_iter()
+    // A NaN residual (a fit that could not be judged) strays too.
+    .find(|(_, fit)| fit.residual_max_s.is_nan() || fit.residual_max_s > limit_s);
     if let RowOutcome::StoppedShort { short_of_target_m } = rec.outcome {
         Some(format!(
             "the arm stopped {:.1} mm short of the row's end (the RTDE watchdog tripped, or the \
@@ -481,6 +490,13 @@ pub fn row_problem(lab: &LabConfig, rec: &RowRecording) -> Option<String> {
         ))
     } else if rec.rtde_gaps > 0 {
         Some(format!("{} RTDE gap(s) during the row", rec.rtde_gaps))
+    } else if let Some((clock, fit)) = strayed {
+        Some(format!(
+            "the {clock} clock fit strays {:.1} ms from its line, above \
+             recording.max_clock_residual_s = {:.1} ms (the host stamped arrivals late)",
+            fit.residual_max_s * 1e3,
+            limit_s * 1e3
+        ))
     } else {
         None
     }
@@ -675,4 +691,80 @@ pub fn build_capture(
         }
     }
     capture
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ur::clock::ClockFit;
+
+    fn fit(residual_max_s: f64) -> ClockFit {
+        ClockFit {
+            offset_s: 0.0,
+            drift: 0.0,
+            reference_s: 0.0,
+            residual_rms_s: residual_max_s / 2.0,
+            residual_max_s,
+            bins: 8,
+        }
+    }
+
+    /// A row attempt of 100 complete frames that ended as `outcome`, and its alignment.
+    fn attempt(
+        outcome: RowOutcome,
+        radar_s: f64,
+        controller_s: f64,
+    ) -> (RowRecording, RowAlignment) {
+        let rec = RowRecording {
+            row: 3,
+            attempt: 0,
+            direction: 1,
+            usable_x_m: (0.0, 0.1),
+            frames: Vec::new(),
+            complete: vec![true; 100],
+            arrivals: Vec::new(),
+            rtde: Vec::new(),
+            report: Default::default(),
+            outcome,
+            rtde_gaps: 0,
+        };
+        let aligned = RowAlignment {
+            frames: Vec::new(),
+            dropped: Default::default(),
+            radar_fit: fit(radar_s),
+            controller_fit: fit(controller_s),
+        };
+        (rec, aligned)
+    }
+
+    #[test]
+    fn a_row_is_judged_by_its_outcome_its_losses_and_its_clock_fits() {
+        let lab = LabConfig::default();
+        let problem = |(rec, aligned): (RowRecording, RowAlignment)| {
+            row_problem(&lab, &rec, &aligned).unwrap_or_default()
+        };
+        assert_eq!(problem(attempt(RowOutcome::Completed, 1e-4, 1e-3)), "");
+        let short = RowOutcome::StoppedShort {
+            short_of_target_m: 0.0474,
+        };
+        assert!(problem(attempt(short, 1e-4, 1e-3)).starts_with("the arm stopped 47.4 mm short"));
+        assert_eq!(
+            problem(attempt(RowOutcome::Completed, 1e-4, 0.0116)),
+            "the controller clock fit strays 11.6 ms from its line, above \
+             recording.max_clock_residual_s = 2.0 ms (the host stamped arrivals late)"
+        );
+        assert!(
+            problem(attempt(RowOutcome::Completed, 0.003, 1e-3)).starts_with("the radar clock")
+        );
+        assert!(
+            problem(attempt(RowOutcome::Completed, f64::NAN, 1e-3)).starts_with("the radar clock")
+        );
+        let (mut lossy, aligned) = attempt(RowOutcome::Completed, 1e-4, 1e-3);
+        lossy.complete[10] = false;
+        lossy.complete[20] = false;
+        assert_eq!(
+            row_problem(&lab, &lossy, &aligned).unwrap_or_default(),
+            "frame loss 2.02 % above recording.max_frame_loss = 1.00 %"
+        );
+    }
 }
