@@ -457,3 +457,21 @@ fn reconstruct_refuses_impossible_volumes_and_malformed_captures() {
     let t = attempt(&[]);
     assert!(t.contains("samples.npy"), "{t}");
 }
+
+#[test]
+fn the_robot_simulators_fault_flags_are_refused_naming_flag_and_value() {
+    let o = mmnormd(&["sim", "robot", "--input-loss", "3"]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("--input-loss 3: expected MOVE:SECONDS"),
+        "{}",
+        text(&o)
+    );
+    let o = mmnormd(&["sim", "robot", "--protective-stop", "1:soon"]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("--protective-stop seconds `soon`"),
+        "{}",
+        text(&o)
+    );
+}
