@@ -231,9 +231,10 @@ fn paired_line(ratios: &[f64]) -> Option<String> {
     let median = quantile(ratios, 0.5)?;
     let within = ratios.iter().filter(|r| (**r - 1.0).abs() <= 0.1).count();
     let better = ratios.iter().filter(|r| **r < 0.9).count();
+    let worse = ratios.iter().filter(|r| **r > 1.1).count();
     Some(format!(
         "NLOS/LOS median {median:.2}; {within} of {} pairs within 10 %, NLOS better by more in \
-         {better}",
+         {better} and worse by more in {worse}",
         ratios.len()
     ))
 }
@@ -781,7 +782,8 @@ mod tests {
         assert!((ratios[0] - 1.04).abs() < 1e-12 && (ratios[1] - 0.5).abs() < 1e-12);
         assert_eq!(
             paired_line(&ratios).unwrap(),
-            "NLOS/LOS median 0.77; 1 of 2 pairs within 10 %, NLOS better by more in 1"
+            "NLOS/LOS median 0.77; 1 of 2 pairs within 10 %, NLOS better by more in 1 and worse \
+             by more in 0"
         );
         assert_eq!(paired_line(&[]), None);
     }
