@@ -3,8 +3,9 @@
 //! ([`crate::align`]). A row whose frame loss exceeds `recording.max_frame_loss`, that had an
 //! RTDE gap, whose program ended short of the row's end (the RTDE watchdog tripped), or whose
 //! clock fits stray beyond `recording.max_clock_residual_s` ([`row_problem`]) is scanned again
-//! up to `recording.max_row_retries` times, then reported and kept for what it holds. Every attempt goes to the [`ScanLog`] (the MCAP recorder) before it is
-//! judged, so nothing recorded is lost. The kept frames become the [`Capture`].
+//! up to `recording.max_row_retries` times, then reported and kept for what it holds. Every
+//! attempt goes to the [`ScanLog`] (the MCAP recorder) before it is judged, so nothing recorded
+//! is lost. The kept frames become the [`Capture`].
 //!
 //! The devices come in through their traits; this module never opens a socket.
 
@@ -634,6 +635,7 @@ fn record_row(
             message,
         });
     }
+    // A row that stopped short is judged by `row_problem`, like a lossy one.
     if !matches!(record.outcome, RowOutcome::StoppedShort { .. }) {
         completed(index, &record.outcome)?;
     }
