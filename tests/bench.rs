@@ -23,6 +23,7 @@ fn smoke_suite_scores_mmnorm_above_its_floor_and_ahead_of_backprojection() {
         markdown: Some(out.path().join("BENCH.md")),
         command: "test".into(),
         report_only: false,
+        only: Vec::new(),
         notes: None,
         includes: Vec::new(),
         quiet: true,
@@ -234,6 +235,40 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
         )),
         "{report}"
     );
+
+    // Running one case keeps the report whole: the selected case runs (again, as another
+    // build wrote it), the others that finished are read back whichever build wrote them, and
+    // a case with no result is listed as not run yet rather than as failed.
+    let removed = suite
+        .cases
+        .iter()
+        .map(|c| c.id.clone())
+        .find(|id| id != "sphere-flat-los" && *id != other)
+        .expect("a third case");
+    std::fs::remove_file(result_json(&removed)).expect("remove a result");
+    set_build("sphere-flat-los", "0123456789abcdef");
+    let one = BenchOptions {
+        report_only: false,
+        only: vec!["sphere-flat-los".into()],
+        ..report_only.clone()
+    };
+    let partial = run_suite(&suite, out.path(), &one).expect("one case");
+    assert!(
+        partial.failed_cases.is_empty(),
+        "{:?}",
+        partial.failed_cases
+    );
+    assert_eq!(partial.not_run, vec![removed.clone()]);
+    assert_eq!(partial.results.len(), 3);
+    assert_eq!(build_of("sphere-flat-los").as_deref(), Some(ours));
+    assert_eq!(build_of(&other).as_deref(), Some("0123456789abcdef"));
+    let report = std::fs::read_to_string(out.path().join("report.md")).expect("report");
+    assert!(report.contains("4 cases (3 with results)"), "{report}");
+    assert!(
+        report.contains(&format!("## Not run yet\n\n1 of 4 cases: {removed}.")),
+        "{report}"
+    );
+    assert!(!report.contains("## Failures"), "{report}");
 }
 
 #[test]

@@ -111,6 +111,10 @@ pub struct BenchOptions {
     pub command: String,
     /// Run nothing: report the cases an earlier run finished (the others as not run).
     pub report_only: bool,
+    /// Run only the cases these patterns select ([`Suite::selection`]; empty: every case). The
+    /// report still covers the whole suite: the other cases an earlier run finished in the work
+    /// directory are read back, the rest listed as not run.
+    pub only: Vec<String>,
     /// A markdown file of hand-written analysis to include in the report.
     pub notes: Option<PathBuf>,
     /// Markdown files included verbatim before the plots (e.g. `bench perf --markdown`'s).
@@ -122,6 +126,8 @@ pub struct BenchOptions {
 pub struct BenchOutcome {
     pub results: Vec<CaseResult>,
     pub failed_cases: Vec<(String, String)>,
+    /// Cases this run did not select and no earlier run finished.
+    pub not_run: Vec<String>,
     pub wall_s: f64,
 }
 
@@ -143,21 +149,41 @@ pub fn run_suite(
         memory_budget_bytes: opts.memory_budget_bytes,
         quiet: opts.quiet,
     };
-    let outcomes = if opts.report_only {
-        suite
-            .cases
-            .iter()
-            .map(|c| run::finished_result(c, &run_opts).ok_or_else(|| "not run yet".to_string()))
-            .collect()
+    let to_run = if opts.report_only {
+        vec![false; suite.cases.len()]
+    } else if opts.only.is_empty() {
+        vec![true; suite.cases.len()]
     } else {
+        suite.selection(&opts.only)?
+    };
+    let selected: Vec<Case> = suite
+        .cases
+        .iter()
+        .zip(&to_run)
+        .filter(|(_, run)| **run)
+        .map(|(c, _)| c.clone())
+        .collect();
+    if !selected.is_empty() {
         std::fs::create_dir_all(&run_opts.runs_dir).map_err(io(&run_opts.runs_dir))?;
         std::fs::create_dir_all(out).map_err(io(out))?;
-        run::run_cases(&suite.cases, &run_opts)
-    };
+    }
+    let mut ran = match selected.is_empty() {
+        true => Vec::new(),
+        false => run::run_cases(&selected, &run_opts),
+    }
+    .into_iter();
     let mut results = Vec::new();
     let mut failed_cases = Vec::new();
-    for (case, outcome) in suite.cases.iter().zip(outcomes) {
-        match outcome {
+    let mut not_run = Vec::new();
+    for (case, run) in suite.cases.iter().zip(&to_run) {
+        if !run {
+            match run::finished_result(case, &run_opts) {
+                Some(r) => results.push(r),
+                None => not_run.push(case.id.clone()),
+            }
+            continue;
+        }
+        match ran.next().unwrap_or_else(|| Err("not run".into())) {
             Ok(r) => results.push(r),
             Err(e) => failed_cases.push((case.id.clone(), e)),
         }
@@ -205,6 +231,7 @@ pub fn run_suite(
         report_only: opts.report_only,
         cases: suite.cases.len(),
         failed_cases: failed_cases.clone(),
+        not_run: not_run.clone(),
         notes,
         includes,
     };
@@ -218,6 +245,7 @@ pub fn run_suite(
     Ok(BenchOutcome {
         results,
         failed_cases,
+        not_run,
         wall_s,
     })
 }

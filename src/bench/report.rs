@@ -429,6 +429,8 @@ pub struct RunInfo {
     pub report_only: bool,
     pub cases: usize,
     pub failed_cases: Vec<(String, String)>,
+    /// Cases neither run now nor finished by an earlier run.
+    pub not_run: Vec<String>,
     /// Hand-written analysis (markdown) appended to the report, with the file it came from.
     pub notes: Option<(String, String)>,
     /// Further markdown sections (such as `bench perf --markdown`'s), included before the plots.
@@ -723,6 +725,15 @@ wrong points (precision) or from surface the reconstruction does not reach (reca
             f("center"),
             f("weighted"),
             link(&png)
+        );
+    }
+    if !info.not_run.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Not run yet\n\n{} of {} cases: {}.",
+            info.not_run.len(),
+            info.cases,
+            info.not_run.join(", ")
         );
     }
     if !stats.failures.is_empty() || !info.failed_cases.is_empty() {

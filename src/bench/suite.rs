@@ -378,11 +378,11 @@ impl Suite {
         })
     }
 
-    /// Keeps only the cases `patterns` select, in suite order. A pattern that is a case's id
-    /// selects that case alone (`box-flat-los`, not `cracker_box-flat-los` too); any other
-    /// pattern selects every case whose id contains it (`nlos`). The selection is the union.
-    /// Refuses a pattern that selects nothing, naming it, and leaves the suite unchanged then.
-    pub fn select(&mut self, patterns: &[String]) -> Result<(), SuiteError> {
+    /// Which cases `patterns` select, one flag per case in suite order. A pattern that is a
+    /// case's id selects that case alone (`box-flat-los`, not `cracker_box-flat-los` too); any
+    /// other pattern selects every case whose id contains it (`nlos`). The selection is the
+    /// union. Refuses a pattern that selects nothing, naming it.
+    pub fn selection(&self, patterns: &[String]) -> Result<Vec<bool>, SuiteError> {
         let mut keep = vec![false; self.cases.len()];
         for pattern in patterns {
             let exact = self.cases.iter().any(|c| c.id == *pattern);
@@ -407,9 +407,7 @@ impl Suite {
                 });
             }
         }
-        let mut flags = keep.into_iter();
-        self.cases.retain(|_| flags.next().unwrap_or(false));
-        Ok(())
+        Ok(keep)
     }
 }
 
@@ -874,10 +872,16 @@ offset_m = [-0.05, 0.0, 0.0]
         let text = suite_text(&format!("{}{}", scene("box"), scene("sugar_box")));
         let suite = Suite::parse(&text, &path()).expect("suite");
         let ids = |patterns: &[&str]| -> Result<Vec<String>, SuiteError> {
-            let mut s = suite.clone();
             let patterns: Vec<String> = patterns.iter().map(|p| p.to_string()).collect();
-            s.select(&patterns)?;
-            Ok(s.cases.into_iter().map(|c| c.id).collect())
+            let flags = suite.selection(&patterns)?;
+            assert_eq!(flags.len(), suite.cases.len());
+            Ok(suite
+                .cases
+                .iter()
+                .zip(flags)
+                .filter(|(_, f)| *f)
+                .map(|(c, _)| c.id.clone())
+                .collect())
         };
         assert_eq!(ids(&["box-flat-los"]).expect("exact"), ["box-flat-los"]);
         assert_eq!(

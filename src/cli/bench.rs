@@ -25,11 +25,13 @@ pub struct AccuracyArgs {
     markdown: Option<PathBuf>,
     /// Run only these cases: a case id (e.g. `box-flat-los`) selects that case alone; text that
     /// is no case id selects every case whose id contains it (e.g. `nlos`). Comma-separated or
-    /// repeated; the selection is the union.
+    /// repeated; the selection is the union. The report still covers the whole suite: cases
+    /// that earlier runs finished in the work directory are read back, the rest listed as not
+    /// run yet.
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
     /// Run nothing; write the report from the cases already finished.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "only")]
     report_only: bool,
     /// Markdown with a hand-written analysis of the run, included in the report. Its relative
     /// links are taken from OUT and rewritten for the --markdown copy.
@@ -272,10 +274,11 @@ fn available_memory_bytes() -> Option<u64> {
 }
 
 pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
-    let mut suite = Suite::load(&a.suite)?;
-    if !a.only.is_empty() {
-        suite.select(&a.only)?;
-    }
+    let suite = Suite::load(&a.suite)?;
+    let selected = match a.only.is_empty() {
+        true => suite.cases.len(),
+        false => suite.selection(&a.only)?.into_iter().filter(|&s| s).count(),
+    };
     if let Some(n) = &a.notes
         && !n.is_file()
     {
@@ -296,7 +299,7 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
         .collect::<Vec<_>>()
         .join(" ");
     tracing::info!(
-        "{} cases from {}, {jobs} at a time within {:.1} GiB",
+        "{selected} of {} cases from {}, {jobs} at a time within {:.1} GiB",
         suite.cases.len(),
         a.suite.display(),
         budget as f64 / (1u64 << 30) as f64
@@ -311,16 +314,18 @@ pub fn accuracy(a: AccuracyArgs, quiet: bool) -> Result<()> {
             markdown: a.markdown,
             command,
             report_only: a.report_only,
+            only: a.only,
             notes: a.notes,
             includes: a.include,
             quiet,
         },
     )?;
     println!(
-        "wrote {}: {} cases scored, {} failed, {:.0} s; see report.md",
+        "wrote {}: {} cases scored, {} failed, {} not run yet, {:.0} s; see report.md",
         a.out.display(),
         outcome.results.len(),
         outcome.failed_cases.len(),
+        outcome.not_run.len(),
         outcome.wall_s
     );
     for (id, e) in &outcome.failed_cases {
