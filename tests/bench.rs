@@ -265,6 +265,14 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
     let report = std::fs::read_to_string(out.path().join("report.md")).expect("report");
     assert!(report.contains("4 cases (3 with results)"), "{report}");
     assert!(
+        report.contains(&format!(
+            "the results come from several builds of mmnormd: 0123456789abcdef, {ours})"
+        )) || report.contains(&format!(
+            "the results come from several builds of mmnormd: {ours}, 0123456789abcdef)"
+        )),
+        "{report}"
+    );
+    assert!(
         report.contains(&format!("## Not run yet\n\n1 of 4 cases: {removed}.")),
         "{report}"
     );

@@ -466,29 +466,38 @@ neighbours within 1 cm, as the paper does for its baselines (§6.3.1). Results: 
         info.cases,
         results.len(),
         info.aperture,
-        if info.report_only {
+        {
             let mut builds: Vec<&str> = results.iter().map(|r| r.build.as_str()).collect();
             builds.sort_unstable();
             builds.dedup();
-            format!(
-                "this report was written with --report-only from cases finished by earlier runs \
-({} of mmnormd: {})",
-                if builds.len() == 1 {
-                    "one build"
-                } else {
-                    "several builds"
-                },
-                builds
-                    .iter()
-                    .map(|b| if b.is_empty() { "unrecorded" } else { b })
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        } else {
-            format!(
-                "wall time of this run {:.0} s (cases already finished on disk were not run again)",
-                info.wall_s
-            )
+            let named = builds
+                .iter()
+                .map(|b| if b.is_empty() { "unrecorded" } else { b })
+                .collect::<Vec<_>>()
+                .join(", ");
+            let which = if builds.len() == 1 {
+                "one build"
+            } else {
+                "several builds"
+            };
+            if info.report_only {
+                format!(
+                    "this report was written with --report-only from cases finished by earlier \
+runs ({which} of mmnormd: {named})"
+                )
+            } else if builds.len() > 1 {
+                format!(
+                    "wall time of this run {:.0} s (cases already finished on disk were not run \
+again: the results come from {which} of mmnormd: {named})",
+                    info.wall_s
+                )
+            } else {
+                format!(
+                    "wall time of this run {:.0} s (cases already finished on disk were not run \
+again)",
+                    info.wall_s
+                )
+            }
         },
         link("results.csv")
     );
