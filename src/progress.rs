@@ -14,6 +14,8 @@ pub struct Progress {
     total: u64,
     done: AtomicU64,
     started: Instant,
+    /// Off a bar, no line is logged before the stage has run this long.
+    quiet_for_s: f64,
 }
 
 impl Progress {
@@ -36,6 +38,21 @@ impl Progress {
             total: if quiet { 0 } else { total },
             done: AtomicU64::new(0),
             started: Instant::now(),
+            quiet_for_s: 0.0,
+        }
+    }
+
+    /// A stage inside another stage's bar (a case of `bench accuracy`): never a bar of its
+    /// own, a log line at each further tenth once it has run `quiet_for_s`, so that only long
+    /// work speaks. `quiet` hides everything.
+    pub fn lines(label: &str, total: u64, quiet: bool, quiet_for_s: f64) -> Progress {
+        Progress {
+            bar: None,
+            label: label.to_string(),
+            total: if quiet { 0 } else { total },
+            done: AtomicU64::new(0),
+            started: Instant::now(),
+            quiet_for_s,
         }
     }
 
@@ -44,16 +61,16 @@ impl Progress {
         let before = self.done.fetch_add(n, Ordering::Relaxed);
         if let Some(bar) = &self.bar {
             bar.inc(n);
-        } else if self.total > 0 {
-            let decile = |x: u64| x * 10 / self.total;
-            if decile(before + n) > decile(before) {
+        } else {
+            let elapsed_s = self.started.elapsed().as_secs_f64();
+            if line_due(before, n, self.total, elapsed_s, self.quiet_for_s) {
                 tracing::info!(
                     "{}: {}/{} ({}%) after {:.1} s",
                     self.label,
                     before + n,
                     self.total,
                     (before + n) * 100 / self.total,
-                    self.started.elapsed().as_secs_f64()
+                    elapsed_s
                 );
             }
         }
@@ -74,5 +91,26 @@ impl Progress {
             bar.finish();
         }
         self.started.elapsed().as_secs_f64()
+    }
+}
+
+/// Whether a step from `before` by `n` of `total` units (0: quiet) logs a line after
+/// `elapsed_s`: when it crosses a further tenth, once `quiet_for_s` have passed.
+fn line_due(before: u64, n: u64, total: u64, elapsed_s: f64, quiet_for_s: f64) -> bool {
+    total > 0 && (before + n) * 10 / total > before * 10 / total && elapsed_s >= quiet_for_s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::line_due;
+
+    #[test]
+    fn a_line_is_due_at_each_further_tenth_once_the_quiet_time_has_passed() {
+        let due = |before, n| line_due(before, n, 100, 5.0, 0.0);
+        assert!(!due(0, 9) && due(9, 1) && !due(10, 1) && due(10, 10) && due(95, 5));
+        // Off, or not yet long enough: no line at any tenth.
+        assert!(!line_due(9, 1, 0, 5.0, 0.0));
+        assert!(!line_due(9, 1, 100, 5.0, 30.0));
+        assert!(line_due(9, 1, 100, 30.0, 30.0));
     }
 }

@@ -11,7 +11,8 @@ use super::{BenchError, io};
 use crate::capture::space::{available_bytes, capture_dir_bytes};
 use crate::capture::{Capture, read_capture_dir};
 use crate::geometry::{TriMesh, load_mesh};
-use crate::sim::{simulate, write_simulation};
+use crate::progress::Progress;
+use crate::sim::{simulate_with, write_simulation};
 
 fn gigabytes(bytes: u64) -> f64 {
     bytes as f64 / 1e9
@@ -98,21 +99,36 @@ pub fn capture_bytes(case: &Case) -> u64 {
 /// A capture that cannot be stored is not lost: when the disk holds less than its size plus
 /// [`DISK_MARGIN_BYTES`], or writing it fails, a warning says so and the case goes on with the
 /// capture in memory; the cache keeps no part of it.
-pub fn capture_for(cache_dir: &Path, case: &Case, key: &str) -> Result<CachedCapture, BenchError> {
-    capture_for_with(cache_dir, case, key, available_bytes)
+///
+/// A simulation that runs longer than [`SIMULATION_QUIET_S`] logs a line at each further
+/// tenth of its antennas, naming the case, unless `quiet`.
+pub fn capture_for(
+    cache_dir: &Path,
+    case: &Case,
+    key: &str,
+    quiet: bool,
+) -> Result<CachedCapture, BenchError> {
+    capture_for_with(cache_dir, case, key, quiet, available_bytes)
 }
+
+/// A case's simulation logs its progress only after running this long, seconds.
+pub const SIMULATION_QUIET_S: f64 = 30.0;
 
 fn capture_for_with(
     cache_dir: &Path,
     case: &Case,
     key: &str,
+    quiet: bool,
     available: impl Fn(&Path) -> Option<u64>,
 ) -> Result<CachedCapture, BenchError> {
     let dir = cache_dir.join(key);
     let hit = dir.join("capture.json").is_file() && dir.join("truth.ply").is_file();
     if !hit {
         std::fs::create_dir_all(cache_dir).map_err(io(cache_dir))?;
-        let mut result = simulate(&case.scene, true);
+        let label = format!("{} simulate", case.id);
+        let mut result = simulate_with(&case.scene, |antennas| {
+            Progress::lines(&label, antennas, quiet, SIMULATION_QUIET_S)
+        });
         let needed = capture_bytes(case).saturating_add(DISK_MARGIN_BYTES);
         match available(cache_dir) {
             Some(free) if free < needed => tracing::warn!(
@@ -208,7 +224,7 @@ radius_m = 0.02
         let cache = std::env::temp_dir().join(format!("mmnormd-cache-size-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&cache);
         let key = capture_key(&case);
-        let fresh = capture_for_with(&cache, &case, &key, |_| None).expect("simulated");
+        let fresh = capture_for_with(&cache, &case, &key, true, |_| None).expect("simulated");
         assert_eq!(entries(&cache), std::slice::from_ref(&key));
         let on_disk: u64 = ["samples.npy", "tx.npy", "rx.npy"]
             .iter()
@@ -220,7 +236,7 @@ radius_m = 0.02
             on_disk >= expected && on_disk <= expected + 3 * 128,
             "{on_disk} bytes on disk against {expected} expected"
         );
-        let cached = capture_for_with(&cache, &case, &key, |_| Some(0)).expect("read back");
+        let cached = capture_for_with(&cache, &case, &key, true, |_| Some(0)).expect("read back");
         assert_eq!(cached.capture.antennas(), fresh.capture.antennas());
         assert_eq!(cached.capture.chirp(7), fresh.capture.chirp(7));
         let _ = std::fs::remove_dir_all(&cache);
@@ -233,7 +249,7 @@ radius_m = 0.02
         let _ = std::fs::remove_dir_all(&cache);
         let key = capture_key(&case);
         let room = capture_bytes(&case) + DISK_MARGIN_BYTES - 1;
-        let got = capture_for_with(&cache, &case, &key, |_| Some(room)).expect("from memory");
+        let got = capture_for_with(&cache, &case, &key, true, |_| Some(room)).expect("from memory");
         assert_eq!(got.capture.antennas(), case.scene.channels());
         assert!(got.capture.chirp(0).iter().any(|z| z.norm() > 0.0));
         assert!(entries(&cache).is_empty(), "{:?}", entries(&cache));

@@ -273,7 +273,7 @@ pub fn run_case(
         return Ok(done);
     }
     stage("simulate");
-    let cached = capture_for(&opts.cache_dir, case, &capture_key)?;
+    let cached = capture_for(&opts.cache_dir, case, &capture_key, opts.quiet)?;
     let capture = &cached.capture;
     let (truth, truth_normals) = top_surface_with_normals(&cached.truth_mesh, TOP_GRID_M);
     stage("image");

@@ -304,8 +304,15 @@ impl ForwardModel {
     }
 }
 
-/// Runs the forward model over every antenna of the scene's aperture.
+/// Runs the forward model over every antenna of the scene's aperture, with a progress bar
+/// (`quiet` hides it).
 pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
+    simulate_with(scene, |antennas| Progress::new("simulate", antennas, quiet))
+}
+
+/// [`simulate`], reporting through the [`Progress`] that `progress` makes for the number of
+/// antennas.
+pub fn simulate_with(scene: &Scene, progress: impl FnOnce(u64) -> Progress) -> SimOutput {
     let started = std::time::Instant::now();
     let plan = scene.plan;
     let lambda0_m = plan.first_wavelength_m();
@@ -314,8 +321,8 @@ pub fn simulate(scene: &Scene, quiet: bool) -> SimOutput {
     let t = plan.samples_per_chirp;
     let n = antennas.tx_m.len();
     let mut samples = vec![Complex32::new(0.0, 0.0); n * t];
-    let progress = Progress::new("simulate", n as u64, quiet);
     let per = antennas.per_position.max(1);
+    let progress = progress(n as u64);
     let rendered = samples
         .par_chunks_mut(t * per)
         .enumerate()

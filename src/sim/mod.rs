@@ -14,6 +14,6 @@ pub mod scene;
 pub mod surface;
 pub mod truth;
 
-pub use forward::{ForwardModel, SimOutput, SimStats, simulate};
+pub use forward::{ForwardModel, SimOutput, SimStats, simulate, simulate_with};
 pub use output::write_simulation;
 pub use scene::{Scene, SceneError};
