@@ -475,3 +475,33 @@ fn the_robot_simulators_fault_flags_are_refused_naming_flag_and_value() {
         text(&o)
     );
 }
+
+#[test]
+fn bench_accuracy_refuses_a_selection_that_matches_nothing_or_comes_with_report_only() {
+    let out = tempfile::tempdir().unwrap();
+    let suite = repo("tools/bench/smoke.toml");
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "bench",
+            "accuracy",
+            "--suite",
+            suite.to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        mmnormd(&a)
+    };
+    let o = args(&["--only", "cube"]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("`--only` = \"cube\": no case id is or contains it"),
+        "{}",
+        text(&o)
+    );
+    let o = args(&["--only", "sphere", "--report-only"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("cannot be used with"), "{}", text(&o));
+    // Neither wrote anything.
+    assert_eq!(std::fs::read_dir(out.path()).unwrap().count(), 0);
+}
