@@ -280,12 +280,12 @@ point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,
 }
 
 #[test]
-fn the_paper_suite_uses_every_shared_mesh_and_the_reduced_suite_the_same_scenes() {
-    let meshes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes");
+fn the_paper_suite_uses_every_vendored_mesh_and_the_reduced_suite_the_same_scenes() {
+    let meshes = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/meshes");
     let paper_text = std::fs::read_to_string(suite_path("paper.toml")).expect("paper.toml");
     let mut files = 0;
     for e in std::fs::read_dir(&meshes)
-        .expect("shared meshes")
+        .expect("data/meshes")
         .filter_map(Result::ok)
     {
         let name = e.file_name().to_string_lossy().to_string();

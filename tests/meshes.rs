@@ -1,21 +1,21 @@
-//! Mesh loading against the shared YCB meshes and their reference figures (`meshes.json`).
+//! Mesh loading against the vendored YCB meshes (`data/meshes`) and their reference figures (`meshes.json`).
 
 use std::path::{Path, PathBuf};
 
 use mmnormd::geometry::load_mesh;
 
 fn meshes_dir() -> PathBuf {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/meshes");
     assert!(
         dir.join("meshes.json").is_file(),
-        "the shared YCB meshes are expected at {} (the repository's ../shared)",
+        "the YCB meshes are expected at {} (data/meshes in the repository)",
         dir.display()
     );
     dir
 }
 
 #[test]
-fn every_shared_mesh_loads_with_its_reference_bbox_and_area() {
+fn every_vendored_mesh_loads_with_its_reference_bbox_and_area() {
     let dir = meshes_dir();
     let reference: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("meshes.json")).unwrap()).unwrap();

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes tests/data/li_threshold.json: arrays and scikit-image's threshold_li for each.
 
-The fixture for `recon::threshold` (mmNorm §3.2 / mmnorm-reference §4): mmnormd's own Li
+The fixture for `recon::threshold` (mmNorm §3.2 / docs/mmnorm-reference.md §4): mmnormd's own Li
 implementation must agree with scikit-image on these. Run from the repository root with
 numpy and scikit-image installed: python3 tools/make_li_fixtures.py
 """
