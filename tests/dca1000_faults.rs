@@ -1,4 +1,4 @@
-//! Fault tests of the DCA1000 data path with the seeded injector (anchors.md C3 #4–#6): the
+//! Fault tests of the DCA1000 data path with the seeded injector (lost, reordered, duplicated and corrupted packets): the
 //! simulator's sans-IO core streams through the injector into the reassembler on a simulated
 //! clock, so the figures are exact. Each test prints the figure it checks.
 

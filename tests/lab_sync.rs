@@ -1,4 +1,4 @@
-//! Time synchronisation in the simulated lab (research/protocols.md D3 step 3): a point target
+//! Time synchronisation in the simulated lab (docs/protocols.md D3 step 3): a point target
 //! scanned with one forward and one backward row. A timing error δt moves each row's antennas
 //! by v·δt along its own direction, so the target focuses at x ± v·δt: the two rows disagree by
 //! 2·v·δt. The live alignment must make them agree within 0.1 mm; the same rows re-aligned with

@@ -1,4 +1,4 @@
-//! Time alignment (research/protocols.md D3): a recorded row's radar frames, packet arrival
+//! Time alignment (docs/protocols.md D3): a recorded row's radar frames, packet arrival
 //! times and RTDE samples in; the kept frames, each with its host time and the TX and RX
 //! positions in the robot base frame, out.
 //!
@@ -17,7 +17,7 @@
 //! A frame is dropped when it was flagged (zero-filled by the reassembler), when no RTDE sample
 //! pair of one segment within `max_pose_gap_s` brackets it, when the TCP lies outside the row's
 //! constant-velocity stretch, or when its TX lies closer than `min_spacing_wavelengths`·λ0
-//! (3/16, mmnorm-reference §1) to the row's last kept TX.
+//! (3/16, docs/mmnorm-reference.md §1) to the row's last kept TX.
 
 pub mod pose;
 

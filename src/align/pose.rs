@@ -1,7 +1,7 @@
 //! Rigid transforms in the UR pose convention and their interpolation.
 //!
 //! A UR pose `[x, y, z, rx, ry, rz]` is a translation in metres and a rotation vector (axis ×
-//! angle, radians) (research/protocols.md C7). `base_from_tcp` maps TCP coordinates into the
+//! angle, radians) (docs/protocols.md C7). `base_from_tcp` maps TCP coordinates into the
 //! base frame. Between two RTDE samples the pose is interpolated linearly in position and by
 //! slerp in rotation.
 

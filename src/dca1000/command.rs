@@ -1,4 +1,4 @@
-//! Config-port commands and responses (research/protocols.md A2–A4).
+//! Config-port commands and responses (docs/protocols.md A2–A4).
 //!
 //! Request, all fields little-endian:
 //!

@@ -1,6 +1,6 @@
 //! The TI DCA1000EVM raw-ADC capture board.
 //!
-//! This module owns everything that crosses the board's Ethernet link (research/protocols.md §A):
+//! This module owns everything that crosses the board's Ethernet link (docs/protocols.md §A):
 //! - [`command`]: the command and response codec of the config port (A2–A4), byte-exact;
 //! - [`packet`]: the data-packet codec of the data port (A5);
 //! - [`reassembler`]: the sans-IO reassembler that places payloads by byte offset, counts lost,

@@ -1,4 +1,4 @@
-//! Raw data packets of the data port (research/protocols.md A5).
+//! Raw data packets of the data port (docs/protocols.md A5).
 //!
 //! | offset | size | field |
 //! |---|---|---|
@@ -127,7 +127,7 @@ mod tests {
 
     #[test]
     fn packetize_cuts_full_payloads_and_one_partial_tail() {
-        // The 4000-frame capture of protocols.md §0.5: 22 505 full packets and one of 720 bytes.
+        // The 4000-frame capture of docs/protocols.md §0.5: 22 505 full packets and one of 720 bytes.
         let stream = vec![0u8; 4000 * 8192];
         let packets = packetize(&stream, 1);
         assert_eq!(packets.len(), 22_506);

@@ -1,4 +1,4 @@
-//! Sans-IO reassembly of the raw data stream into frames (research/protocols.md A5).
+//! Sans-IO reassembly of the raw data stream into frames (docs/protocols.md A5).
 //!
 //! Payloads are placed by their byte offset, never by arrival order or by "a frame starts a
 //! packet": frames are not packet-aligned (an 8192-byte frame is 5.63 packets). Frame k occupies

@@ -1,4 +1,4 @@
-//! The IWR1443's 4-lane complex sample layout (research/protocols.md A6).
+//! The IWR1443's 4-lane complex sample layout (docs/protocols.md A6).
 //!
 //! Each sample instant of a chirp is 8 little-endian `i16`, one LVDS lane per receiver:
 //!

@@ -1,4 +1,4 @@
-//! A DCA1000EVM simulator (research/protocols.md A9): a sans-IO [`BoardCore`] and a UDP shell
+//! A DCA1000EVM simulator (docs/protocols.md A9): a sans-IO [`BoardCore`] and a UDP shell
 //! ([`DcaSimulator`]) that binds loopback addresses only.
 //!
 //! The core answers every command with the 8-byte echo and status of A2. After `RECORD_START`

@@ -1,4 +1,4 @@
-//! The DCA1000 over UDP (research/protocols.md A1, A8): [`UdpBoard`], a [`CaptureBoard`].
+//! The DCA1000 over UDP (docs/protocols.md A1, A8): [`UdpBoard`], a [`CaptureBoard`].
 //!
 //! The host binds its config port and its data port; the board sends every datagram to the host
 //! IP. The data socket asks for a large receive buffer (64 MiB by default) and a warning names

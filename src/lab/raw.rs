@@ -1,4 +1,4 @@
-//! A radar-only capture (research/protocols.md B4), for bench checks of the radar chain and for
+//! A radar-only capture (docs/protocols.md B4), for bench checks of the radar chain and for
 //! interop with TI's tools: `mmnormd capture raw`.
 //!
 //! Sequence: DCA `SYSTEM_CONNECT`, `READ_FPGA_VERSION`, `CONFIG_FPGA_GEN`, `CONFIG_PACKET_DATA`;

@@ -1,6 +1,6 @@
 //! `RadarProfile`: a parsed and validated IWR1443 CLI profile.
 //!
-//! Conversions follow the mmWave SDK CLI handlers (`cli_mmwave.c`, see research/protocols.md B2):
+//! Conversions follow the mmWave SDK CLI handlers (`cli_mmwave.c`, see docs/protocols.md B2):
 //! - start frequency code = trunc(f_GHz · 2²⁶ / 3.6), computed in double (LSB 53.644 Hz);
 //! - slope code = (int16) trunc(S_MHz/µs · 2²⁶ / (3.6e3 · 900)), in double (LSB 48.2798 kHz/µs);
 //! - idle, ADC start, ramp end and TX start times = trunc((float)t_µs · 1000 / 10) in single
@@ -58,7 +58,7 @@ const PASS_THROUGH_COMMANDS: &[&str] = &[
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum RxLayout {
     /// IWR1443BOOST: the four RX patches lie on a line at λ0/2 pitch, 5 mm from TX1.
-    /// RX k sits at −(5 mm + (3 − k)·λ0/2) along the array axis (mmnorm-reference §1: channel 0 is
+    /// RX k sits at −(5 mm + (3 − k)·λ0/2) along the array axis (docs/mmnorm-reference.md §1: channel 0 is
     /// the farthest from the transmitter), with λ0 the wavelength of ADC sample 0.
     Iwr1443Boost,
 }

@@ -1,4 +1,4 @@
-//! An IWR1443 CLI simulator (research/protocols.md B6): a sans-IO [`CliSimCore`] and a PTY
+//! An IWR1443 CLI simulator (docs/protocols.md B6): a sans-IO [`CliSimCore`] and a PTY
 //! shell ([`CliSimulator`]) that a client opens like the radar's UART.
 //!
 //! The core plays the mmWave Studio CLI firmware: it echoes each line, answers `Done` or

@@ -1,4 +1,4 @@
-//! The two baselines of paper §5. Neither repository implements them (mmnorm-reference §6).
+//! The two baselines of paper §5. Neither repository implements them (docs/mmnorm-reference.md §6).
 //!
 //! - **Backprojection**: the voxel centres where |S| ≥ `fraction`·max|S|. The paper tuned the
 //!   fraction for the best median F-score without giving it; mmnormd's default is 0.3

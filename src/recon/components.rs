@@ -1,5 +1,5 @@
 //! Connected components of a voxel mask with 6-connectivity (face neighbours), as mmNorm labels
-//! its high-power regions before integrating one RSDF per component (§3.2; mmnorm-reference §4.2
+//! its high-power regions before integrating one RSDF per component (§3.2; docs/mmnorm-reference.md §4.2
 //! uses `cc3d` with connectivity 6).
 //!
 //! Grids are C-ordered (x, y, z): flat index = (x·NY + y)·NZ + z.

@@ -11,7 +11,7 @@
 //!
 //! Only the bins that the volume can reach are kept, so memory is N × (reachable bins), not
 //! N × pad·T. S(v) is the mean of I_j(v) over the N antennas. The authors' per-group
-//! normalisation quirk (mmnorm-reference §2.5) is not replicated.
+//! normalisation quirk (docs/mmnorm-reference.md §2.5) is not replicated.
 //!
 //! The hot loop is f32 and parallel over x-slabs of the grid. `tests::fast_image_matches_brute_force_eq4`
 //! checks it against Eq. 4 evaluated directly in f64.

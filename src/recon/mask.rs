@@ -1,6 +1,6 @@
 //! The binary image of §3.2 (Eq. 9–10): the voxels that hold the object's surface.
 //!
-//! As in the authors' code (mmnorm-reference §4.1), Li's threshold is computed on |S|^e for
+//! As in the authors' code (docs/mmnorm-reference.md §4.1), Li's threshold is computed on |S|^e for
 //! e = 2, 2.5, 3.5, 4 in turn. An attempt fails when Li does not converge within the iteration
 //! limit. A successful attempt is accepted when the oriented bounding box of its voxels is at most
 //! `max_box_m3` (0.03 m³). The mask is (|S| > floor·max|S|) ∧ (|S|^e ≥ t_Li).

@@ -4,7 +4,7 @@
 //! weight `w_j = Re(I_j(v)·conj(S(v)))/|S(v)|`, the projection of its contribution onto the
 //! sum. The normal is the normalised vote sum. Candidates are unit vectors from v towards the
 //! antenna's virtual phase centre (TX + RX)/2, as in the paper (Eq. 1).
-//! [`Candidates::Displacement`] keeps the authors' variant instead (mmnorm-reference §3): the
+//! [`Candidates::Displacement`] keeps the authors' variant instead (docs/mmnorm-reference.md §3): the
 //! un-normalised displacement, which weights far antennas more. Only the selected voxels get a
 //! normal (the authors select |S| above 5 % of max|S|; [`above_fraction`] makes that selection);
 //! the others are NaN. Each voxel's normal depends on that voxel alone, so the selection changes

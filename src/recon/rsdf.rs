@@ -2,7 +2,7 @@
 //! gradient follows the estimated normal field (paper §3.2, Eq. 8), defined up to a constant.
 //!
 //! Two integrators:
-//! - [`integrate_bfs`], the authors' single-path integral (mmnorm-reference §4.3). It starts at
+//! - [`integrate_bfs`], the authors' single-path integral (docs/mmnorm-reference.md §4.3). It starts at
 //!   the component voxel nearest the component's mean position and walks a breadth-first
 //!   spanning tree in the neighbour order (−x, +y, +x, −y, +z, −z). Each step adds
 //!   `voxel · (step · n̂(destination))`. The result depends on the seed, the order and every

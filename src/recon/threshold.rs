@@ -1,5 +1,5 @@
 //! Li's minimum cross-entropy threshold (Li & Lee 1993; Li & Tam 1998), used by mmNorm's binary
-//! mask (§3.2, mmnorm-reference §4.1).
+//! mask (§3.2, docs/mmnorm-reference.md §4.1).
 //!
 //! The iteration is scikit-image's `threshold_li` for floating-point images, step for step:
 //! - NaNs are dropped;

@@ -7,7 +7,7 @@
 //! again (the earlier sphere tracer did, at ¼–2 voxel steps per level).
 //!
 //! A hit is a crossing of the level from above to below between two adjacent defined samples,
-//! refined by the secant between them. This differs from the authors' tracer (mmnorm-reference §5), which
+//! refined by the secant between them. This differs from the authors' tracer (docs/mmnorm-reference.md §5), which
 //! counts any negative sample as a hit: a ray that enters a component from the side below the
 //! level would then "hit" the component's boundary, a wall that is not part of the surface and
 //! moves with the candidate level.

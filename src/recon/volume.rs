@@ -1,6 +1,6 @@
 //! The imaged volume: an explicit box, or one found from the data.
 //!
-//! The authors image a fixed box in their radar frame (mmnorm-reference §2). mmnormd derives the
+//! The authors image a fixed box in their radar frame (docs/mmnorm-reference.md §2). mmnormd derives the
 //! box from the capture instead, so any aperture height, size or position works:
 //! 1. **Range window.** The incoherent sum of |range profile|² over a seeded random subset of
 //!    antennas (Hann-windowed), restricted to `range_window_m` (one-way, range offset removed),

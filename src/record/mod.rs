@@ -1,4 +1,4 @@
-//! The MCAP recorder (research/protocols.md §E): one file per scan, zstd chunks closed every
+//! The MCAP recorder (docs/protocols.md §E): one file per scan, zstd chunks closed every
 //! `chunk_seconds` of wall time (so a crash loses at most one chunk), Foxglove schemas where
 //! Foxglove has them, schemas and channels repeated in the summary for indexed readers.
 //!

@@ -10,7 +10,7 @@ use crate::capture::FrequencyPlan;
 use crate::geometry::{self, MeshError, TriMesh};
 use crate::radar::{ProfileError, RadarProfile};
 
-/// The TI IWR1443's internal round-trip offset that mmNorm's code adds (mmnorm-reference §1).
+/// The TI IWR1443's internal round-trip offset that mmNorm's code adds (docs/mmnorm-reference.md §1).
 pub const DEFAULT_RANGE_OFFSET_M: f64 = 0.15;
 
 #[derive(Debug, Deserialize)]

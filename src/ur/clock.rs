@@ -1,4 +1,4 @@
-//! Controller time → host time (research/protocols.md D3 step 1).
+//! Controller time → host time (docs/protocols.md D3 step 1).
 //!
 //! Each RTDE package carries the controller's `timestamp` and is stamped with the host's
 //! monotonic receive time. Their difference is the clock offset plus a latency that is never

@@ -1,4 +1,4 @@
-//! The UR5e arm (research/protocols.md §C): its RTDE pose stream, the controller-clock mapping,
+//! The UR5e arm (docs/protocols.md §C): its RTDE pose stream, the controller-clock mapping,
 //! the Dashboard, the raster planner, rows driven through the [`robot::Robot`] trait, and a
 //! simulator of the arm.
 //!

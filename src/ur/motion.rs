@@ -1,4 +1,4 @@
-//! The raster planner (research/protocols.md C5): a scan spec becomes rows of constant-speed
+//! The raster planner (docs/protocols.md C5): a scan spec becomes rows of constant-speed
 //! `movel`s in the robot's base frame.
 //!
 //! Rows run along x and step along y. Each row is lengthened at both ends by the distance the

@@ -152,7 +152,7 @@ const AT_TARGET_M: f64 = 0.0005;
 /// so one kick may be late by up to 80 ms (a busy host) before the robot stops.
 pub const WATCHDOG_KICK: Duration = Duration::from_millis(20);
 
-/// `runtime_state` codes (protocols.md C4).
+/// `runtime_state` codes (docs/protocols.md C4).
 const RUNTIME_STOPPED: i64 = 1;
 const RUNTIME_PLAYING: i64 = 2;
 
@@ -428,7 +428,7 @@ impl Robot for UrRobot {
 }
 
 impl UrRobot {
-    /// Refuses motion in Local mode (script would be silently ignored, protocols.md §0
+    /// Refuses motion in Local mode (script would be silently ignored, docs/protocols.md §0
     /// fact 9) and outside Running or under a safety stop.
     fn check_ready(&mut self) -> Result<(), RobotError> {
         let status = self.status()?;
@@ -499,7 +499,7 @@ impl UrRobot {
     }
 
     /// Takes every RTDE event queued since the last call (between scans nothing else reads
-    /// them; the stream must be read continuously, protocols.md §0 fact 7).
+    /// them; the stream must be read continuously, docs/protocols.md §0 fact 7).
     pub fn drain_events(&mut self) -> Result<(), RobotError> {
         self.pump(Duration::ZERO, &mut Vec::new())
     }

@@ -1,5 +1,5 @@
 //! The commands of the mmWave Studio CLI firmware and the LVDS-stream test application
-//! (research/protocols.md B2), with the argument counts each accepts.
+//! (docs/protocols.md B2), with the argument counts each accepts.
 
 /// `(command, accepted argument counts)`; an empty list accepts any count.
 pub const COMMANDS: &[(&str, &[usize])] = &[

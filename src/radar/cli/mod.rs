@@ -1,4 +1,4 @@
-//! The IWR1443's UART command line (research/protocols.md §B), sans-IO.
+//! The IWR1443's UART command line (docs/protocols.md §B), sans-IO.
 //!
 //! - [`reply`] splits the radar's output into lines and prompts and classifies each line: the
 //!   echo, info lines (`Debug:`, `Ignored:`, `Skipped`), `Done`, `Error <n>` with its studio_cli

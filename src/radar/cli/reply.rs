@@ -1,4 +1,4 @@
-//! Lines and prompts out of the radar's UART (research/protocols.md B1).
+//! Lines and prompts out of the radar's UART (docs/protocols.md B1).
 //!
 //! A reply is the echo of the command, optional info lines, then `Done` or `Error <n>`, then a
 //! prompt without a line end. Lines end in `\n`, often followed by a stray `\r`

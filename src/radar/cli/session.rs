@@ -1,4 +1,4 @@
-//! A sans-IO session that sends a list of CLI commands (research/protocols.md B1, B4).
+//! A sans-IO session that sends a list of CLI commands (docs/protocols.md B1, B4).
 //!
 //! The caller moves bytes and time: [`CliSession::poll_transmit`] gives bytes to write,
 //! [`CliSession::handle_input`] takes bytes read, [`CliSession::poll_timeout`] says when to call

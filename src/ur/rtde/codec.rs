@@ -1,4 +1,4 @@
-//! The RTDE wire format (research/protocols.md C2, C3). Everything is big-endian.
+//! The RTDE wire format (docs/protocols.md C2, C3). Everything is big-endian.
 //!
 //! Every packet:
 //!

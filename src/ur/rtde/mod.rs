@@ -1,4 +1,4 @@
-//! RTDE, the UR controller's real-time data exchange (research/protocols.md C2–C4): the
+//! RTDE, the UR controller's real-time data exchange (docs/protocols.md C2–C4): the
 //! sans-IO codec and the client thread around it.
 
 pub mod client;

@@ -1,4 +1,4 @@
-//! The simulator's Dashboard server: the greeting and the replies of research/protocols.md C6.
+//! The simulator's Dashboard server: the greeting and the replies of docs/protocols.md C6.
 //! In Local mode every command that acts is refused with the controller's text; queries answer.
 
 use std::io::{BufRead as _, BufReader, Write as _};

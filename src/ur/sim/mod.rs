@@ -1,4 +1,4 @@
-//! A UR5e simulator on loopback TCP (research/protocols.md C, C8): an RTDE server, a Dashboard
+//! A UR5e simulator on loopback TCP (docs/protocols.md C, C8): an RTDE server, a Dashboard
 //! server with the replies of C6 (Local-mode refusals included), and a script port that runs
 //! `movel` with a trapezoidal velocity profile, so the TCP pose evolves in time and appears in
 //! RTDE.

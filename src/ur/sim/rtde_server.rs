@@ -1,4 +1,4 @@
-//! The simulator's RTDE server (research/protocols.md C2–C4, C8): the handshake, output and
+//! The simulator's RTDE server (docs/protocols.md C2–C4, C8): the handshake, output and
 //! input recipes (`NOT_FOUND` for unknown fields, `IN_USE` for registers 0–23 when a fieldbus
 //! holds them), `S`/`P`, and data packages at the recipe rate stamped with the controller clock.
 //! A client that stops reading is dropped after 10 s, as the controller does.
