@@ -35,7 +35,8 @@ impl Default for RadarConfig {
     fn default() -> Self {
         Self {
             profile: PathBuf::from("firmware_cfg/iwr1443_mmnorm.cfg"),
-            serial_port: PathBuf::from("/dev/ttyACM0"),
+            // The name systemd/99-mmnormd-radar.rules gives the CLI UART.
+            serial_port: PathBuf::from("/dev/mmnormd-radar"),
             baud_rate: 115_200,
             command_timeout_ms: 1000,
             retries: 3,
