@@ -139,6 +139,42 @@ pub struct Marker {
     pub colour: Rgb,
 }
 
+/// Round tick values (1, 2, 2.5 or 5 times a power of ten apart, about `count` of them) over
+/// `a..=b`, with labels that carry as many decimals as the step needs.
+pub fn linear_ticks(a: f64, b: f64, count: f64) -> Vec<(f64, String)> {
+    if !(a.is_finite() && b.is_finite() && b > a && count > 0.0) {
+        return Vec::new();
+    }
+    let raw = (b - a) / count;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(raw);
+    let digits = if step >= 1.0 {
+        0
+    } else {
+        // 2.5·10^k needs one more decimal than 10^k.
+        let d = (-step.log10().floor()) as usize;
+        if ((step / 10f64.powi(-(d as i32))) - 2.5).abs() < 1e-9 {
+            d + 1
+        } else {
+            d
+        }
+    };
+    let mut out = Vec::new();
+    let mut k = (a / step).ceil();
+    while k * step <= b + step * 1e-9 {
+        let x = k * step;
+        // Avoid "-0".
+        let x = if x.abs() < step * 1e-9 { 0.0 } else { x };
+        out.push((x, format!("{x:.digits$}")));
+        k += 1.0;
+    }
+    out
+}
+
 /// An empirical CDF chart in the style of the paper's Fig. 12–15.
 pub struct CdfChart {
     pub title: String,
@@ -197,26 +233,7 @@ impl CdfChart {
             }
             return out;
         }
-        let raw = (b - a) / 5.0;
-        let mag = 10f64.powf(raw.log10().floor());
-        let step = [1.0, 2.0, 2.5, 5.0, 10.0]
-            .iter()
-            .map(|m| m * mag)
-            .find(|s| *s >= raw)
-            .unwrap_or(raw);
-        let mut out = Vec::new();
-        let mut x = (a / step).ceil() * step;
-        while x <= b + step * 1e-9 {
-            let label = if step >= 1.0 {
-                format!("{x:.0}")
-            } else {
-                let digits = (-step.log10().floor()) as usize;
-                format!("{x:.digits$}")
-            };
-            out.push((x, label));
-            x += step;
-        }
-        out
+        linear_ticks(a, b, 5.0)
     }
 
     /// Draws the chart.

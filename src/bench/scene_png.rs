@@ -8,11 +8,15 @@
 
 use std::path::Path;
 
-use crate::plot::{BLACK, Canvas, LIGHT, WHITE};
-use crate::preview::{PreviewError, viridis};
+use crate::plot::{BLACK, Canvas, WHITE};
+use crate::preview::{PanelRect, PreviewError, draw_axes_cm, draw_colour_bar, viridis};
 
 const PANEL: i64 = 240;
-const GAP: i64 = 16;
+/// Between panels: room for the next panel's tick labels.
+const GAP: i64 = 44;
+const BAR_WIDTH: i64 = 14;
+/// Right of the panels: a colour bar per row and its labels.
+const BAR_MARGIN: i64 = 80;
 const HEAD: i64 = 44;
 const LABEL: i64 = 48;
 
@@ -57,7 +61,7 @@ fn draw_scene(
         ("mmNorm", mmnorm),
         ("backprojection", backprojection),
     ];
-    let width = LABEL + 3 * PANEL + 4 * GAP;
+    let width = LABEL + 3 * PANEL + 4 * GAP + BAR_MARGIN;
     let height = HEAD + 2 * (PANEL + GAP + 14);
     let mut c = Canvas::new(width as usize, height as usize, WHITE);
     c.text(GAP, 10, title, BLACK, 2);
@@ -83,19 +87,25 @@ fn draw_scene(
             let dot = if col == 0 { MIN_DOT_PX } else { lattice_px };
             let x0 = LABEL + GAP + col as i64 * (PANEL + GAP);
             c.fill_rect(x0, y0, PANEL, PANEL, [245, 245, 245]);
-            for e in 0..PANEL {
-                c.set(x0 + e, y0, LIGHT);
-                c.set(x0 + e, y0 + PANEL - 1, LIGHT);
-                c.set(x0, y0 + e, LIGHT);
-                c.set(x0 + PANEL - 1, y0 + e, LIGHT);
-            }
+            // The panel spans PANEL / scale metres about the box's centre on both axes.
+            let half_m = PANEL as f64 / 2.0 / scale;
+            let (cu, cv) = ((lo[u] + hi[u]) / 2.0, (lo[v] + hi[v]) / 2.0);
+            draw_axes_cm(
+                &mut c,
+                &PanelRect {
+                    x: x0,
+                    y: y0,
+                    width: PANEL,
+                    height: PANEL,
+                },
+                (cu - half_m, cu + half_m),
+                (cv - half_m, cv + half_m),
+            );
             if row == 0 {
                 let text = format!("{label} ({})", points.len());
                 c.text(x0, y0 - 14, &text, BLACK, 1);
             }
             // Centre the box in the panel; draw far points first so near ones stay on top.
-            let cu = (lo[u] + hi[u]) / 2.0;
-            let cv = (lo[v] + hi[v]) / 2.0;
             let mut order: Vec<&[f64; 3]> = points
                 .iter()
                 .filter(|p| (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]))
@@ -112,9 +122,22 @@ fn draw_scene(
                 c.fill_rect(x - half, y - half, dot, dot, viridis(t as f32));
             }
         }
+        let bx = LABEL + 3 * (PANEL + GAP) + GAP;
+        c.text(bx - 8, y0 - 14, ["z (cm)", "y (cm)"][row], BLACK, 1);
+        draw_colour_bar(
+            &mut c,
+            &PanelRect {
+                x: bx,
+                y: y0,
+                width: BAR_WIDTH,
+                height: PANEL,
+            },
+            lo[colour_axis] * 100.0,
+            hi[colour_axis] * 100.0,
+        );
     }
     let bar = format!(
-        "panels {:.0} cm across; top: colour = height, side: colour = y",
+        "axes in cm, panels {:.0} cm across; top: x-y, colour = height z; side: x-z, colour = y",
         span * 100.0
     );
     c.text(GAP, height - 12, &bar, BLACK, 1);

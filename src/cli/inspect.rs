@@ -2,7 +2,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use mmnormd::capture::{read_capture_dir, truth_files};
-use mmnormd::preview::ScalarImage;
+use mmnormd::preview::{ColourBar, MapFigure, ScalarImage};
 use num_complex::Complex32;
 use rayon::prelude::*;
 use rustfft::FftPlanner;
@@ -159,12 +159,30 @@ pub fn run(dir: &Path, png: Option<&Path>, gate: Option<(f64, f64)>) -> Result<(
             .map_or("none".into(), |p| p.display().to_string())
     );
     if let Some(path) = png {
-        let image = aperture_image(&centres, &power_db, lo, hi);
-        image.write_png(path, peak_db - 40.0, peak_db, 2)?;
+        let (image, cell_m) = aperture_image(&centres, &power_db, lo, hi);
         let what = match gate {
             None => "received power".to_string(),
             Some((lo, hi)) => format!("strongest echo between {lo} m and {hi} m one way"),
         };
+        let edges =
+            |k: usize, cells: usize| (lo[k] - cell_m / 2.0, lo[k] + cell_m * (cells as f64 - 0.5));
+        MapFigure {
+            title: &format!("{what} at each antenna"),
+            image: &image,
+            x_m: edges(0, image.width),
+            y_m: edges(1, image.height),
+            x_name: "x",
+            y_name: "y",
+            colour: ColourBar {
+                lo: peak_db - 40.0,
+                hi: peak_db,
+                label: "power (dB)".into(),
+                label_scale: 1.0,
+            },
+            truth: None,
+            zoom: 2,
+        }
+        .write_png(path)?;
         println!(
             "  wrote {} ({}×{} cells, colour = {what}, top 40 dB; +x right, +y up)",
             path.display(),
@@ -185,14 +203,15 @@ fn pitch(centres: &[[f64; 3]], k: usize) -> Option<f64> {
     gaps.get(gaps.len() / 2).copied()
 }
 
-/// Places each antenna's power in a cell of an image spanning the aperture (max per cell).
-/// Cells are one raster pitch wide when the picture fits in `MAX_SIDE`, else coarser.
+/// Places each antenna's power in a cell of an image spanning the aperture (max per cell), and
+/// returns it with the cell's width in metres (cell (0, bottom) centred on `lo`). Cells are one
+/// raster pitch wide when the picture fits in `MAX_SIDE`, else coarser.
 fn aperture_image(
     centres: &[[f64; 3]],
     power_db: &[f32],
     lo: [f64; 3],
     hi: [f64; 3],
-) -> ScalarImage {
+) -> (ScalarImage, f64) {
     let (wx, wy) = ((hi[0] - lo[0]).max(1e-9), (hi[1] - lo[1]).max(1e-9));
     let raster = pitch(centres, 0)
         .into_iter()
@@ -210,9 +229,12 @@ fn aperture_image(
             *cell_v = v;
         }
     }
-    ScalarImage {
-        width,
-        height,
-        values,
-    }
+    (
+        ScalarImage {
+            width,
+            height,
+            values,
+        },
+        cell,
+    )
 }

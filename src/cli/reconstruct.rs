@@ -1,6 +1,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
+use mmnormd::capture::dir::{read_points_npy, truth_files};
 use mmnormd::capture::read_capture_dir;
 use mmnormd::recon::config::{Imaging, Isosurface, Method, VolumeSpec};
 use mmnormd::recon::{ReconConfig, Reconstruction, image_volume, output, reconstruct_imaged};
@@ -69,7 +70,7 @@ pub fn run(
         .map_err(|e| anyhow::anyhow!("{e} (--voxel-mm is in millimetres)"))?;
     let dir_of = |m: Method| {
         if nested {
-            out.join(method_name(m))
+            out.join(m.name())
         } else {
             out.to_path_buf()
         }
@@ -85,6 +86,23 @@ pub fn run(
             d.display()
         );
     }
+    // Before the long work: every output directory can be made (not a file, not under one).
+    for dir in methods.iter().map(|&m| dir_of(m)) {
+        if dir.exists() && !dir.is_dir() {
+            bail!(
+                "--out {}: {} exists and is not a directory",
+                out.display(),
+                dir.display()
+            );
+        }
+        std::fs::create_dir_all(&dir).with_context(|| {
+            format!(
+                "--out {}: cannot create the output directory {}",
+                out.display(),
+                dir.display()
+            )
+        })?;
+    }
     let capture = read_capture_dir(capture_dir)?;
     // The image is formed for the first method (mmNorm when it is among them: it alone needs
     // the spectral votes).
@@ -98,20 +116,12 @@ pub fn run(
             // With several methods, one failing (say, no component for mmNorm) does not discard
             // the others.
             Err(e) if nested => {
-                tracing::error!("{}: {e}", method_name(method));
+                tracing::error!("{}: {e}", method.name());
             }
             Err(e) => return Err(e.into()),
         }
     }
     Ok(())
-}
-
-fn method_name(m: Method) -> &'static str {
-    match m {
-        Method::Mmnorm => "mmnorm",
-        Method::Backprojection => "backprojection",
-        Method::Interferometric => "interferometric",
-    }
 }
 
 fn write_outputs(
@@ -121,12 +131,20 @@ fn write_outputs(
     recon: &Reconstruction,
     magnitude: &[f32],
 ) -> Result<()> {
+    // A simulated capture carries the surface seen from above; the previews draw it under the
+    // points. A truth file that cannot be read only costs the overlay.
+    let truth = truth_files(capture_dir).top_points.and_then(|path| {
+        read_points_npy(&path)
+            .map_err(|e| tracing::warn!("{}: {e}; previews without the truth", path.display()))
+            .ok()
+    });
     output::write_reconstruction(
         &capture_dir.display().to_string(),
         out,
         config,
         recon,
         magnitude,
+        truth.as_deref(),
     )?;
     let s = &recon.summary;
     let stages: Vec<String> = s
@@ -138,7 +156,7 @@ fn write_outputs(
         "wrote {}: {} points ({}), {} component(s); {}",
         out.display(),
         s.points,
-        method_name(config.method),
+        config.method.name(),
         s.components.len(),
         stages.join(", ")
     );

@@ -478,6 +478,7 @@ pub fn reconstruct_and_score(
         config,
         &recon,
         &imaged.magnitude,
+        truth.map(|(points, _)| points.as_slice()),
     )
     .map_err(|e| JobError::Io(e.to_string()))?;
     let metrics = truth.map(|(points, normals)| {

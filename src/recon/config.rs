@@ -20,6 +20,26 @@ pub enum Method {
     Interferometric,
 }
 
+impl Method {
+    /// The name on the command line and in config files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Mmnorm => "mmnorm",
+            Method::Backprojection => "backprojection",
+            Method::Interferometric => "interferometric",
+        }
+    }
+
+    /// The name in pictures and reports.
+    pub fn title(self) -> &'static str {
+        match self {
+            Method::Mmnorm => "mmNorm",
+            Method::Backprojection => "Backprojection",
+            Method::Interferometric => "Interferometric",
+        }
+    }
+}
+
 /// How S(v) is formed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]

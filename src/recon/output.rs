@@ -8,7 +8,7 @@ use serde_json::json;
 use super::image::VoxelGrid;
 use super::{ReconConfig, Reconstruction};
 use crate::capture::dir::write_atomically;
-use crate::preview::ScalarImage;
+use crate::preview::{ColourBar, MapFigure, ScalarImage};
 
 /// Why the outputs could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -25,19 +25,21 @@ fn write_err(path: &Path) -> impl Fn(String) -> OutputError + '_ {
 }
 
 /// Writes `points.ply`, `summary.json` (version, capture, parameters, result) and the
-/// previews into `out`.
+/// previews into `out`. `truth` (the surface seen from above, in the reconstruction's frame),
+/// where known, is drawn in grey under the point views.
 pub fn write_reconstruction(
     capture_label: &str,
     out: &Path,
     config: &ReconConfig,
     recon: &Reconstruction,
     magnitude: &[f32],
+    truth: Option<&[[f64; 3]]>,
 ) -> Result<(), OutputError> {
     std::fs::create_dir_all(out).map_err(|e| write_err(out)(e.to_string()))?;
     let ply = out.join("points.ply");
     write_atomically(&ply, &recon.encode_ply()).map_err(|e| write_err(&ply)(e.to_string()))?;
     write_summary(&out.join("summary.json"), capture_label, config, recon)?;
-    write_previews(out, recon, magnitude)
+    write_previews(out, recon, magnitude, truth)
 }
 
 /// Writes `path` as `summary.json` is written: the version, the capture, the parameters and
@@ -60,26 +62,44 @@ pub fn write_summary(
     write_atomically(path, text.as_bytes()).map_err(|e| write_err(path)(e.to_string()))
 }
 
-/// Top (x–y, colour = height) and side (x–z, colour = point count) views of the points, and
-/// max-projections of `magnitude` (|S| on the summary's grid) in dB along z and along y.
+/// Top (x–y, colour = height) and side (x–z, colour = point count) views of the points over
+/// the truth, and max-projections of `magnitude` (|S| on the summary's grid) in dB along z and
+/// along y.
 fn write_previews(
     out: &Path,
     recon: &Reconstruction,
     magnitude: &[f32],
+    truth: Option<&[[f64; 3]]>,
 ) -> Result<(), OutputError> {
-    let png = |image: ScalarImage, name: &str, lo: f32, hi: f32, zoom: usize| {
-        let path = out.join(name);
-        image
-            .write_png(&path, lo, hi, zoom)
-            .map_err(|e| write_err(&path)(e.to_string()))
-    };
     let g = &recon.summary.grid;
     let zoom = (400 / g.dims[0].max(g.dims[1]).max(1)).clamp(1, 8);
+    // Cell edges along each axis, metres.
+    let edges = |k: usize| {
+        (
+            g.origin_m[k] - g.voxel_m / 2.0,
+            g.origin_m[k] + g.voxel_m * (g.dims[k] as f64 - 0.5),
+        )
+    };
     let cells = |p: &[f64; 3], u: usize, v: usize| {
         let i = ((p[u] - g.origin_m[u]) / g.voxel_m).round();
         let j = ((p[v] - g.origin_m[v]) / g.voxel_m).round();
         (i >= 0.0 && j >= 0.0 && (i as usize) < g.dims[u] && (j as usize) < g.dims[v])
             .then(|| (i as usize, g.dims[v] - 1 - j as usize))
+    };
+    let method = recon.summary.method.title();
+    let points = recon.points_m.len();
+    let truth_on = |u: usize, v: usize| -> Vec<[f64; 2]> {
+        truth
+            .unwrap_or_default()
+            .iter()
+            .map(|p| [p[u], p[v]])
+            .collect()
+    };
+    let write = |name: &str, figure: MapFigure<'_>| {
+        let path = out.join(name);
+        figure
+            .write_png(&path)
+            .map_err(|e| write_err(&path)(e.to_string()))
     };
     // Top view: highest point per (x, y) cell, y up.
     let (w, h) = (g.dims[0], g.dims[1]);
@@ -92,20 +112,35 @@ fn write_previews(
             }
         }
     }
-    let (lo, hi) = (
+    let (z_lo, z_hi) = (
         g.origin_m[2] as f32,
         g.centre(0, 0, g.dims[2] - 1)[2] as f32,
     );
-    png(
-        ScalarImage {
-            width: w,
-            height: h,
-            values: top,
-        },
+    let truth_xy = truth_on(0, 1);
+    let truth_xz = truth_on(0, 2);
+    let legend = "truth: the surface seen from above";
+    write(
         "points_top.png",
-        lo,
-        hi,
-        zoom,
+        MapFigure {
+            title: &format!("{method}: {points} points, from above"),
+            image: &ScalarImage {
+                width: w,
+                height: h,
+                values: top,
+            },
+            x_m: edges(0),
+            y_m: edges(1),
+            x_name: "x",
+            y_name: "y",
+            colour: ColourBar {
+                lo: z_lo,
+                hi: z_hi,
+                label: "height z (cm)".into(),
+                label_scale: 100.0,
+            },
+            truth: truth.map(|_| (truth_xy.as_slice(), legend)),
+            zoom,
+        },
     )?;
     // Side view: points per (x, z) cell, z up.
     let (w, h) = (g.dims[0], g.dims[2]);
@@ -121,19 +156,62 @@ fn write_previews(
         .copied()
         .filter(|x| !x.is_nan())
         .fold(1.0f32, f32::max);
-    png(
-        ScalarImage {
-            width: w,
-            height: h,
-            values: side,
-        },
+    write(
         "points_side.png",
-        0.0,
-        most,
-        zoom,
+        MapFigure {
+            title: &format!("{method}: {points} points from the side, looking along +y"),
+            image: &ScalarImage {
+                width: w,
+                height: h,
+                values: side,
+            },
+            x_m: edges(0),
+            y_m: edges(2),
+            x_name: "x",
+            y_name: "z",
+            colour: ColourBar {
+                lo: 0.0,
+                hi: most,
+                label: "points per cell".into(),
+                label_scale: 1.0,
+            },
+            truth: truth.map(|_| (truth_xz.as_slice(), legend)),
+            zoom,
+        },
     )?;
-    for (name, axis) in [("image_max_z.png", 2usize), ("image_max_y.png", 1)] {
-        png(max_projection(magnitude, g, axis), name, -30.0, 0.0, zoom)?;
+    for (name, axis, view, (u, v)) in [
+        (
+            "image_max_z.png",
+            2usize,
+            "from above (max over z)",
+            ("x", "y"),
+        ),
+        (
+            "image_max_y.png",
+            1,
+            "from the side (max over y)",
+            ("x", "z"),
+        ),
+    ] {
+        write(
+            name,
+            MapFigure {
+                title: &format!("image |S| {view}"),
+                image: &max_projection(magnitude, g, axis),
+                x_m: edges(0),
+                y_m: edges(if axis == 2 { 1 } else { 2 }),
+                x_name: u,
+                y_name: v,
+                colour: ColourBar {
+                    lo: -30.0,
+                    hi: 0.0,
+                    label: "|S| (dB of peak)".into(),
+                    label_scale: 1.0,
+                },
+                truth: None,
+                zoom,
+            },
+        )?;
     }
     Ok(())
 }
