@@ -40,6 +40,7 @@ enum Command {
     Replay {
         /// The scan's recording.
         mcap: PathBuf,
+        /// Output directory: OUT/capture and OUT/recon.
         #[arg(long)]
         out: PathBuf,
         /// Use this config instead of the one recorded in the file.
@@ -48,9 +49,12 @@ enum Command {
     },
     /// Write a recorded scan as a capture directory v1.
     Export {
+        /// The scan's recording.
         mcap: PathBuf,
+        /// Output capture directory.
         #[arg(long)]
         out: PathBuf,
+        /// Use this config instead of the one recorded in the file.
         #[arg(long)]
         config: Option<PathBuf>,
     },
@@ -179,7 +183,10 @@ enum McapCommand {
     /// Salvage a recording whose writer died (kill -9, full disk): every whole chunk is
     /// copied into a new finished file [default: FILE with extension .recovered.mcap].
     Recover {
+        /// The damaged recording (it is only read).
         file: PathBuf,
+        /// The recovered file; an existing file is never replaced [default: FILE with
+        /// extension .recovered.mcap].
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -223,9 +230,14 @@ fn main() -> std::process::ExitCode {
         _ => "trace",
     };
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    let colour = colour_logs(
+        std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        std::env::var_os("NO_COLOR"),
+    );
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(colour)
         .with_target(false)
         .init();
     // A bad MMNORMD_KERNEL stops the program here, named, before any work.
@@ -351,6 +363,13 @@ fn end_quietly_on_closed_stdout() {
     }
 }
 
+/// Whether log lines carry ANSI colour: only on a terminal, and never when `NO_COLOR` is set to
+/// anything but the empty string (no-color.org). The journal of a systemd unit, a pipe and a file
+/// get plain text.
+fn colour_logs(stderr_is_terminal: bool, no_color: Option<std::ffi::OsString>) -> bool {
+    stderr_is_terminal && no_color.is_none_or(|v| v.is_empty())
+}
+
 fn report(result: anyhow::Result<()>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -381,6 +400,41 @@ fn error_chain(e: &anyhow::Error) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn logs_are_coloured_only_on_a_terminal_without_no_color() {
+        assert!(colour_logs(true, None));
+        assert!(colour_logs(true, Some("".into())));
+        assert!(!colour_logs(true, Some("1".into())));
+        assert!(!colour_logs(false, None));
+    }
+
+    /// Every argument of every subcommand says what it is (and, for a quantity, its unit), so
+    /// that `--help` is the reference.
+    #[test]
+    fn every_option_and_argument_has_help_text() {
+        use clap::CommandFactory;
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            for arg in cmd.get_arguments() {
+                let id = arg.get_id().as_str();
+                if id == "help" || id == "version" {
+                    continue;
+                }
+                if arg.get_help().is_none() && arg.get_long_help().is_none() {
+                    missing.push(format!("{path} {id}"));
+                }
+            }
+            for sub in cmd.get_subcommands() {
+                if sub.get_about().is_none() && sub.get_long_about().is_none() {
+                    missing.push(format!("{path} {} (the subcommand)", sub.get_name()));
+                }
+                walk(sub, &format!("{path} {}", sub.get_name()), missing);
+            }
+        }
+        let mut missing = Vec::new();
+        walk(&Args::command(), "mmnormd", &mut missing);
+        assert!(missing.is_empty(), "no help text: {missing:#?}");
+    }
 
     #[test]
     fn an_error_names_its_source_once() {

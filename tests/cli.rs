@@ -505,3 +505,76 @@ fn bench_accuracy_refuses_a_selection_that_matches_nothing_or_comes_with_report_
     // Neither wrote anything.
     assert_eq!(std::fs::read_dir(out.path()).unwrap().count(), 0);
 }
+
+#[test]
+fn reconstruct_refuses_an_output_that_is_a_file_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("taken");
+    std::fs::write(&file, b"not a directory").unwrap();
+    // The capture does not exist either: the output is checked first, so its error comes alone.
+    let started = std::time::Instant::now();
+    let o = mmnormd(&[
+        "reconstruct",
+        dir.path().join("no-capture").to_str().unwrap(),
+        "--out",
+        file.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    println!("{t} after {:.2} s", started.elapsed().as_secs_f64());
+    assert!(!o.status.success());
+    assert!(
+        t.contains("--out") && t.contains("exists and is not a directory"),
+        "{t}"
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"not a directory");
+}
+
+#[test]
+fn logs_are_plain_text_when_not_on_a_terminal() {
+    // A capture whose truth file is unreadable: the reconstruction goes on and warns.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), SMALL);
+    let cap = dir.path().join("cap");
+    assert!(simulate(&scene, &cap).status.success());
+    std::fs::write(cap.join("truth_top.npy"), b"broken").unwrap();
+    let out = dir.path().join("recon");
+    let o = mmnormd(&[
+        "reconstruct",
+        cap.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--voxel-mm",
+        "2",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        err.contains("WARN") && err.contains("previews without the truth"),
+        "{err}"
+    );
+    assert!(
+        !err.contains('\u{1b}'),
+        "escape sequences in a pipe: {err:?}"
+    );
+    assert!(out.join("points_top.png").is_file());
+}
+
+#[test]
+fn ctl_takes_negative_values_and_says_to_start_a_daemon_that_is_not_there() {
+    // Bind and drop: nothing listens on the port afterwards.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let addr = format!("localhost:{port}");
+    let o = mmnormd(&["ctl", "--addr", &addr, "scan", "--width-m", "-1"]);
+    let t = text(&o);
+    assert!(!o.status.success());
+    assert!(!t.contains("unexpected argument"), "{t}");
+    assert!(t.contains(&format!(":{port}")), "{t}");
+    assert!(
+        t.contains("is the daemon running?") && t.contains("mmnormd --config"),
+        "{t}"
+    );
+}

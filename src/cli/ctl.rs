@@ -1,7 +1,7 @@
 //! `mmnormd ctl`: the control port's client.
 
 use std::io::{BufRead, BufReader, Write};
-use std::net::{SocketAddr, TcpStream};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -10,9 +10,10 @@ use serde_json::{Value, json};
 
 #[derive(clap::Args)]
 pub struct CtlArgs {
-    /// The daemon's control address.
+    /// The daemon's control address, HOST[:PORT] (a name such as localhost, or an IP address;
+    /// PORT defaults to 7878, the daemon's `control.bind`).
     #[arg(long, default_value = "127.0.0.1:7878")]
-    pub addr: SocketAddr,
+    pub addr: String,
     /// The port's token, when it requires one.
     #[arg(long, env = "MMNORMD_TOKEN")]
     pub token: Option<String>,
@@ -24,14 +25,21 @@ pub struct CtlArgs {
 pub enum CtlCommand {
     /// Start a scan (one at a time; a second gets "busy").
     Scan {
+        /// The scan's folder name under recording.data_dir (letters, digits, `-`, `_`, `.`)
+        /// [default: scan-<unix seconds>].
         #[arg(long)]
         name: Option<String>,
-        #[arg(long)]
+        /// Raster width along the base's x, metres [default: the config's scan.width_m].
+        #[arg(long, allow_negative_numbers = true)]
         width_m: Option<f64>,
-        #[arg(long)]
+        /// Raster height along the base's y, metres [default: the config's scan.height_m].
+        #[arg(long, allow_negative_numbers = true)]
         height_m: Option<f64>,
-        #[arg(long)]
+        /// TCP speed along each row, metres per second [default: the config's
+        /// scan.speed_m_per_s].
+        #[arg(long, allow_negative_numbers = true)]
         speed_m_per_s: Option<f64>,
+        /// Free text stored with the scan (what was scanned, under what).
         #[arg(long)]
         label: Option<String>,
         /// Follow the scan with a progress bar until its result.
@@ -45,7 +53,10 @@ pub enum CtlCommand {
     /// Stored scans and their reconstructions.
     List,
     /// Reconstruct a stored scan again.
-    Reconstruct { scan: String },
+    Reconstruct {
+        /// The scan's name, as `list` prints it.
+        scan: String,
+    },
     /// Print events as they come, one JSON object per line, until Ctrl-C.
     Subscribe,
 }
@@ -56,10 +67,70 @@ struct Connection {
     token: Option<String>,
 }
 
+/// The daemon's default control port (`control.bind` in config/lab.toml).
+const DEFAULT_PORT: u16 = 7878;
+
+/// How long a connection attempt to one address may take.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// The addresses `text` (HOST or HOST:PORT, an IPv6 address in brackets) names, PORT defaulting
+/// to [`DEFAULT_PORT`].
+pub fn resolve_addr(text: &str) -> Result<Vec<SocketAddr>> {
+    let with_port = if text.parse::<SocketAddr>().is_ok() {
+        text.to_string()
+    } else if text.parse::<std::net::IpAddr>().is_ok() {
+        // A bare address; an IPv6 one needs brackets before a port.
+        if text.contains(':') {
+            format!("[{text}]:{DEFAULT_PORT}")
+        } else {
+            format!("{text}:{DEFAULT_PORT}")
+        }
+    } else if text.rsplit_once(':').is_some_and(|(host, port)| {
+        !host.is_empty() && !port.is_empty() && port.bytes().all(|b| b.is_ascii_digit())
+    }) {
+        text.to_string()
+    } else {
+        format!("{text}:{DEFAULT_PORT}")
+    };
+    let addrs: Vec<SocketAddr> = with_port
+        .to_socket_addrs()
+        .with_context(|| format!("--addr {text:?}: not a HOST[:PORT] that resolves"))?
+        .collect();
+    if addrs.is_empty() {
+        bail!("--addr {text:?}: resolves to no address");
+    }
+    Ok(addrs)
+}
+
+/// Connects to the first of `addrs` that answers; the error says what to do about the last
+/// failure (start the daemon, check the address).
+fn connect(addrs: &[SocketAddr]) -> Result<TcpStream> {
+    let mut last = None;
+    for addr in addrs {
+        match TcpStream::connect_timeout(addr, CONNECT_TIMEOUT) {
+            Ok(stream) => return Ok(stream),
+            Err(e) => last = Some((*addr, e)),
+        }
+    }
+    let Some((addr, e)) = last else {
+        bail!("no address to connect to");
+    };
+    let hint = match e.kind() {
+        std::io::ErrorKind::ConnectionRefused => {
+            "nothing listens there: is the daemon running? Start it with `mmnormd --config \
+             LAB.toml` (or `systemctl start mmnormd`), and check its control.bind"
+        }
+        std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock => {
+            "timed out: check the address and that the host is reachable"
+        }
+        _ => "check --addr",
+    };
+    bail!("connecting to mmnormd at {addr}: {e} ({hint})")
+}
+
 impl Connection {
-    fn open(addr: SocketAddr, token: Option<String>) -> Result<Self> {
-        let stream = TcpStream::connect_timeout(&addr, Duration::from_secs(3))
-            .with_context(|| format!("connecting to mmnormd at {addr}"))?;
+    fn open(addrs: &[SocketAddr], token: Option<String>) -> Result<Self> {
+        let stream = connect(addrs)?;
         Ok(Self {
             reader: BufReader::new(stream.try_clone()?),
             writer: stream,
@@ -101,7 +172,8 @@ impl Connection {
 }
 
 pub fn run(args: &CtlArgs, quiet: bool) -> Result<()> {
-    let mut c = Connection::open(args.addr, args.token.clone())?;
+    let addrs = resolve_addr(&args.addr)?;
+    let mut c = Connection::open(&addrs, args.token.clone())?;
     let request = match &args.command {
         CtlCommand::Status => json!({"cmd": "status"}),
         CtlCommand::Abort => json!({"cmd": "abort"}),
@@ -140,7 +212,7 @@ pub fn scan_and_wait_value(
     scan: Value,
     quiet: bool,
 ) -> Result<Value> {
-    let mut c = Connection::open(addr, token)?;
+    let mut c = Connection::open(&[addr], token)?;
     c.call(json!({"cmd": "subscribe"}))?;
     let reply = c.call(scan)?;
     let name = reply["scan"].as_str().unwrap_or_default().to_string();
@@ -177,4 +249,46 @@ fn scan_and_wait(c: &mut Connection, scan: Value, quiet: bool) -> Result<()> {
     let result = scan_and_wait_value(addr, c.token.clone(), scan, quiet)?;
     println!("{}", serde_json::to_string_pretty(&result)?);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_take_names_and_a_default_port() {
+        let one = |t: &str| resolve_addr(t).unwrap();
+        assert_eq!(
+            one("127.0.0.1:9000"),
+            vec!["127.0.0.1:9000".parse().unwrap()]
+        );
+        assert_eq!(one("127.0.0.1"), vec!["127.0.0.1:7878".parse().unwrap()]);
+        assert_eq!(one("::1"), vec!["[::1]:7878".parse().unwrap()]);
+        assert_eq!(one("[::1]:9000"), vec!["[::1]:9000".parse().unwrap()]);
+        let local = one("localhost");
+        assert!(
+            local
+                .iter()
+                .all(|a| a.port() == 7878 && a.ip().is_loopback()),
+            "{local:?}"
+        );
+        let local = one("localhost:9000");
+        assert!(local.iter().all(|a| a.port() == 9000), "{local:?}");
+        let err = resolve_addr("127.0.0.1:notaport").unwrap_err().to_string();
+        assert!(err.contains("--addr \"127.0.0.1:notaport\""), "{err}");
+    }
+
+    #[test]
+    fn a_refused_connection_says_to_start_the_daemon() {
+        // Bind and drop: nothing listens on the port afterwards.
+        let addr = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap();
+        let err = connect(&[addr]).unwrap_err().to_string();
+        println!("{err}");
+        assert!(err.contains(&addr.to_string()), "{err}");
+        assert!(err.contains("is the daemon running?"), "{err}");
+        assert!(err.contains("mmnormd --config"), "{err}");
+    }
 }

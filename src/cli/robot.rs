@@ -21,11 +21,13 @@ fn resolve(host: &str, port: u16) -> Result<SocketAddr> {
 
 #[derive(clap::Args)]
 pub struct StatusArgs {
-    /// The robot's address.
+    /// The robot's address (a host name or an IP address).
     #[arg(long)]
     host: String,
+    /// The Dashboard server's TCP port.
     #[arg(long, default_value_t = 29999)]
     dashboard_port: u16,
+    /// The RTDE server's TCP port.
     #[arg(long, default_value_t = 30004)]
     rtde_port: u16,
 }
@@ -77,14 +79,16 @@ pub fn status(a: StatusArgs) -> Result<()> {
 
 #[derive(clap::Args)]
 pub struct LogArgs {
+    /// The robot's address (a host name or an IP address).
     #[arg(long)]
     host: String,
+    /// The RTDE server's TCP port.
     #[arg(long, default_value_t = 30004)]
     rtde_port: u16,
-    /// Output rate: 500 Hz on e-Series, 125 Hz on CB3.
+    /// Output rate in Hz: at most 500 on e-Series, 125 on CB3.
     #[arg(long, default_value_t = 500.0)]
     frequency: f64,
-    /// How long to record.
+    /// How long to record, seconds.
     #[arg(long)]
     seconds: f64,
     /// The CSV file.
@@ -188,19 +192,23 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
 
 #[derive(clap::Args)]
 pub struct SimRobotArgs {
+    /// The RTDE server's TCP port on 127.0.0.1.
     #[arg(long, default_value_t = 30004)]
     rtde_port: u16,
+    /// The Dashboard server's TCP port on 127.0.0.1.
     #[arg(long, default_value_t = 29999)]
     dashboard_port: u16,
+    /// The URScript (secondary interface) TCP port on 127.0.0.1.
     #[arg(long, default_value_t = 30002)]
     script_port: u16,
     /// Start in Local mode: Dashboard actions are refused and scripts ignored.
     #[arg(long)]
     local: bool,
-    /// Controller clock offset (s) and drift (ppm) against this machine's clock.
-    #[arg(long, default_value_t = 0.0)]
+    /// Controller clock offset against this machine's clock, seconds.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     clock_offset_s: f64,
-    #[arg(long, default_value_t = 0.0)]
+    /// Controller clock drift against this machine's clock, parts per million.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     clock_drift_ppm: f64,
     /// Up to this much lateness on each RTDE package, milliseconds.
     #[arg(long, default_value_t = 0.0)]
@@ -215,6 +223,7 @@ pub struct SimRobotArgs {
     /// Input registers 0–23 answer IN_USE, as with a fieldbus enabled.
     #[arg(long)]
     fieldbus: bool,
+    /// Seed of the RTDE jitter's random draws (the same seed, the same jitter).
     #[arg(long, default_value_t = 0)]
     seed: u64,
 }

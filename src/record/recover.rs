@@ -126,7 +126,40 @@ pub struct RecoverReport {
 }
 
 /// Copies every readable record of `damaged` into a new finished file `out`.
+///
+/// The file is written beside `out` under a temporary name and renamed to `out` only once it is
+/// finished: a failure (the damaged file is no MCAP at all, a disk error) leaves nothing at `out`
+/// and removes the partial file. An existing `out` is never replaced.
 pub fn recover(damaged: &Path, out: &Path) -> Result<RecoverReport, ReadError> {
+    let io = |path: &Path, message: String| ReadError::Io {
+        path: path.to_path_buf(),
+        message,
+    };
+    if out.exists() {
+        return Err(io(out, "exists; refusing to replace it".into()));
+    }
+    let mut partial = out.as_os_str().to_owned();
+    partial.push(".partial.tmp");
+    let partial = PathBuf::from(partial);
+    // A partial file of an earlier recovery that was killed is this function's own leftover.
+    let _ = std::fs::remove_file(&partial);
+    match recover_into(damaged, &partial) {
+        Ok(report) => {
+            std::fs::rename(&partial, out).map_err(|e| {
+                let _ = std::fs::remove_file(&partial);
+                io(out, e.to_string())
+            })?;
+            Ok(report)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&partial);
+            Err(e)
+        }
+    }
+}
+
+/// [`recover`]'s work, into `out` (created new).
+fn recover_into(damaged: &Path, out: &Path) -> Result<RecoverReport, ReadError> {
     let io = |path: &Path, message: String| ReadError::Io {
         path: path.to_path_buf(),
         message,
@@ -187,4 +220,35 @@ pub fn recover(damaged: &Path, out: &Path) -> Result<RecoverReport, ReadError> {
     report.read = read;
     writer.finish().map_err(|e| io(out, e.to_string()))?;
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_that_is_no_mcap_is_refused_and_leaves_no_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let bad = dir.path().join("bad.mcap");
+        std::fs::write(&bad, b"this is not a recording").unwrap();
+        let out = dir.path().join("x.mcap");
+        let err = recover(&bad, &out).unwrap_err();
+        assert!(matches!(err, ReadError::NotMcap { .. }), "{err}");
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .filter_map(Result::ok)
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(left, vec![std::ffi::OsString::from("bad.mcap")], "{left:?}");
+    }
+
+    #[test]
+    fn an_existing_output_is_never_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("x.mcap");
+        std::fs::write(&out, b"keep me").unwrap();
+        let err = recover(&dir.path().join("missing.mcap"), &out).unwrap_err();
+        assert!(err.to_string().contains("refusing to replace"), "{err}");
+        assert_eq!(std::fs::read(&out).unwrap(), b"keep me");
+    }
 }

@@ -1,4 +1,4 @@
-//! The Dashboard server (port 29999; research/protocols.md C6): one `\n`-terminated line each
+//! The Dashboard server (port 29999; docs/protocols.md C6): one `\n`-terminated line each
 //! way, typed replies, and a blocking client.
 //!
 //! The Local-mode refusal ("Command is not allowed due to safety reasons, please switch robot to
@@ -145,6 +145,11 @@ pub enum DashboardError {
         #[source]
         source: std::io::Error,
     },
+    #[error(
+        "Dashboard {addr}: timed out, no answer within {waited_s:.1} s (is the robot powered, on \
+         this network, and is this its address?)"
+    )]
+    TimedOut { addr: SocketAddr, waited_s: f64 },
     #[error("Dashboard reply to `{command}` was not understood: {reply:?}")]
     Unexpected { command: String, reply: String },
     #[error("`{command}`: the robot did not reach {want} within {waited_s:.0} s (last: {last})")]
@@ -182,9 +187,22 @@ pub fn parse_program_state(reply: &str) -> Option<ProgramState> {
     })
 }
 
+/// The error for an IO failure on `addr`: a socket timeout (which Linux reports on a read as
+/// "Resource temporarily unavailable") is named as one.
+fn io_failure(addr: SocketAddr, timeout: Duration, source: std::io::Error) -> DashboardError {
+    match source.kind() {
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut => DashboardError::TimedOut {
+            addr,
+            waited_s: timeout.as_secs_f64(),
+        },
+        _ => DashboardError::Io { addr, source },
+    }
+}
+
 /// A connected Dashboard client.
 pub struct DashboardClient {
     addr: SocketAddr,
+    timeout: Duration,
     reader: BufReader<TcpStream>,
     writer: TcpStream,
     /// The greeting line.
@@ -194,13 +212,14 @@ pub struct DashboardClient {
 impl DashboardClient {
     /// Connects and reads the greeting.
     pub fn connect(addr: SocketAddr, timeout: Duration) -> Result<Self, DashboardError> {
-        let io = |source| DashboardError::Io { addr, source };
+        let io = |source| io_failure(addr, timeout, source);
         let stream = TcpStream::connect_timeout(&addr, timeout).map_err(io)?;
         stream.set_read_timeout(Some(timeout)).map_err(io)?;
         stream.set_nodelay(true).map_err(io)?;
         let writer = stream.try_clone().map_err(io)?;
         let mut client = Self {
             addr,
+            timeout,
             reader: BufReader::new(stream),
             writer,
             greeting: String::new(),
@@ -214,10 +233,7 @@ impl DashboardClient {
         let n = self
             .reader
             .read_line(&mut line)
-            .map_err(|source| DashboardError::Io {
-                addr: self.addr,
-                source,
-            })?;
+            .map_err(|source| io_failure(self.addr, self.timeout, source))?;
         if n == 0 {
             return Err(DashboardError::Io {
                 addr: self.addr,
@@ -231,10 +247,7 @@ impl DashboardClient {
     pub fn command(&mut self, command: &str) -> Result<String, DashboardError> {
         self.writer
             .write_all(format!("{command}\n").as_bytes())
-            .map_err(|source| DashboardError::Io {
-                addr: self.addr,
-                source,
-            })?;
+            .map_err(|source| io_failure(self.addr, self.timeout, source))?;
         let reply = self.read_line()?;
         if reply.starts_with("Command is not allowed due to safety reasons") {
             return Err(DashboardError::LocalMode);
@@ -323,6 +336,26 @@ impl DashboardClient {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_server_that_never_greets_is_reported_as_a_timeout_naming_the_wait() {
+        // Accepts the connection (the kernel does, from the backlog) but never writes.
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let started = std::time::Instant::now();
+        let err = DashboardClient::connect(addr, Duration::from_millis(200))
+            .err()
+            .expect("no greeting");
+        let text = err.to_string();
+        println!("{text} after {:.2} s", started.elapsed().as_secs_f64());
+        assert!(matches!(err, DashboardError::TimedOut { .. }), "{err:?}");
+        assert!(
+            text.contains("timed out") && text.contains("0.2 s"),
+            "{text}"
+        );
+        assert!(!text.contains("os error"), "{text}");
+        drop(listener);
+    }
 
     #[test]
     fn replies_parse_into_their_types() {
