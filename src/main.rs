@@ -65,7 +65,7 @@ enum Command {
     },
     /// Simulate a scan of a scene and write a capture directory v1 with its ground truth.
     Simulate {
-        /// Scene file (TOML); see the README for the format.
+        /// Scene file (TOML); docs/formats.md describes the format.
         #[arg(long)]
         scene: PathBuf,
         /// Output capture directory.
@@ -122,7 +122,7 @@ enum Command {
         /// when the phase centres form a raster and says why in summary.json.
         #[arg(long, value_enum)]
         imaging: Option<Imaging>,
-        /// Parameters (TOML); every key is optional. See the README.
+        /// Parameters (TOML); every key is optional; docs/reconstruction.md lists them.
         #[arg(long)]
         config: Option<PathBuf>,
         /// Voxel edge in millimetres [default: 1].

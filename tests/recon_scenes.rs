@@ -2,7 +2,7 @@
 //! cap, a cylinder on its side and two separated objects.
 //!
 //! Apertures are 14–18 cm at 2 mm spacing and voxels are 2 mm, so each case takes seconds in
-//! release mode; the README's example scenes are the full-size runs.
+//! release mode; the example scenes in tools/scenes are the full-size runs.
 //!
 //! The truth is the part of the object's top surface that the aperture can see: the points whose
 //! outward normal, followed up to the aperture plane, lands inside the aperture (a specular

@@ -267,7 +267,7 @@ pub struct ReconConfig {
     /// cm (3.6e-5 m³) and fall back to 1.5 × 1.5 × 2 cm only when nothing reaches that; the paper
     /// names no floor. Their floor drops whole parts of thin objects: at the paper's aperture a
     /// screwdriver's shaft formed a 34.6 cm³ component of its own and was lost (F 0.77; 0.97 with
-    /// it kept; `docs/bench/analysis.md`). `fallback_component_m3` is used when no component
+    /// it kept; `docs/bench/history.md`). `fallback_component_m3` is used when no component
     /// reaches `min_component_m3` (it matters only when that is set above it).
     pub min_component_m3: f64,
     pub fallback_component_m3: f64,
@@ -606,12 +606,12 @@ mod tests {
     }
 
     #[test]
-    fn the_readme_lists_the_defaults() {
-        let readme = include_str!("../../README.md");
+    fn the_reconstruction_doc_lists_the_defaults() {
+        let readme = include_str!("../../docs/reconstruction.md");
         let start = readme
             .find("```toml\nmethod = ")
             .map(|i| i + "```toml\n".len())
-            .expect("the README has the default recon.toml");
+            .expect("docs/reconstruction.md has the default recon.toml");
         let end = start + readme[start..].find("```").unwrap();
         let block = &readme[start..end];
         let parsed = ReconConfig::parse(block).unwrap();
@@ -627,7 +627,7 @@ mod tests {
         for key in keys {
             assert!(
                 block.contains(&format!("\n{key} = ")) || block.starts_with(&format!("{key} = ")),
-                "the README's defaults omit {key}"
+                "docs/reconstruction.md's defaults omit {key}"
             );
         }
         assert_eq!(

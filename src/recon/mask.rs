@@ -21,7 +21,7 @@
 //! found from the data and padded, and the voxels of empty space that the padding adds pull the
 //! threshold down, so the mask depends on the core:
 //! from the −6 dB box to the −12 dB one the threshold fell by 10–30 % on four cases of the
-//! accuracy suite, and the components grew, merged or split (`docs/bench/analysis.md`).
+//! accuracy suite, and the components grew, merged or split (`docs/bench/history.md`).
 //! That is why the imaged margin around the core is left out of the threshold: the threshold
 //! is the core's, and applies over the margin too.
 //! [`LiVoxels::AboveFloor`] computes it over the core's voxels above the floor only, which empty

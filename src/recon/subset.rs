@@ -48,7 +48,7 @@
 //!   of 250 pool antennas, all near the aperture's centre. With the amplitude floor they
 //!   qualify 28, 76 and 47, and the pitcher flat in LOS scores 0.93. Against the energy floor
 //!   16 rows moved (F up on 8, down on 8), and the suite's F median is 0.885 against 0.880
-//!   (`docs/bench/analysis.md`).
+//!   (`docs/bench/history.md`).
 
 use num_complex::Complex32;
 use rayon::prelude::*;

@@ -27,7 +27,7 @@
 //!    the core keeps the roles the box had (`recon::mask`, `recon::pipeline`):
 //!    - Li's threshold and the mask's box guard see the core's voxels only; padding the box
 //!      instead lowered the threshold with the empty space it added, and changed the mask of
-//!      every case (`docs/bench/analysis.md`);
+//!      every case (`docs/bench/history.md`);
 //!    - mask components with no voxel in the core are dropped;
 //!    - the near echoes removed before imaging are those nearer than the core;
 //!    - the baselines threshold the core's image only;
