@@ -58,6 +58,19 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Calibrate align.sync_offset_s and the translation of align.tcp_from_radar from a
+    /// recorded scan of a point reflector, rows both ways (docs/hardware.md §6).
+    Calibrate {
+        /// The scan's recording.
+        mcap: PathBuf,
+        /// The reflector's apex as measured, X,Y,Z in metres in the robot's base frame (also
+        /// where the search starts: within 2 cm of it).
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+        reflector_in_base_m: String,
+        /// Use this config instead of the one recorded in the file.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// MCAP tools.
     Mcap {
         #[command(subcommand)]
@@ -327,6 +340,12 @@ fn main() -> std::process::ExitCode {
         Command::Export { mcap, out, config } => {
             cli::replay::export(&mcap, &out, config.as_deref())
         }
+        Command::Calibrate {
+            mcap,
+            reflector_in_base_m,
+            config,
+        } => cli::replay::parse_point(&reflector_in_base_m, "--reflector-in-base-m")
+            .and_then(|p| cli::replay::calibrate_scan(&mcap, p, config.as_deref())),
         Command::Mcap {
             which: McapCommand::Recover { file, out },
         } => cli::replay::recover_file(&file, out),

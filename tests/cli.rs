@@ -578,3 +578,16 @@ fn ctl_takes_negative_values_and_says_to_start_a_daemon_that_is_not_there() {
         "{t}"
     );
 }
+
+#[test]
+fn calibrate_refuses_a_reflector_position_that_is_not_three_numbers() {
+    for bad in ["0.45,-0.2", "0.45,-0.2,x", "0.45,-0.2,inf"] {
+        let o = mmnormd(&["calibrate", "no-such.mcap", "--reflector-in-base-m", bad]);
+        let t = text(&o);
+        assert!(!o.status.success());
+        assert!(
+            t.contains(&format!("--reflector-in-base-m {bad}")) && t.contains("X,Y,Z in metres"),
+            "{t}"
+        );
+    }
+}

@@ -2,7 +2,8 @@
 //! scanned with one forward and one backward row. A timing error δt moves each row's antennas
 //! by v·δt along its own direction, so the target focuses at x ± v·δt: the two rows disagree by
 //! 2·v·δt. The live alignment must make them agree within 0.1 mm; the same rows re-aligned with
-//! a deliberate 2 ms error must not (the check can fail).
+//! a deliberate 2 ms error must not (the check can fail). The calibration (`mmnormd calibrate`)
+//! must undo a wrong offset and a wrong mount from the same rows.
 
 mod common;
 
@@ -15,6 +16,7 @@ use mmnormd::capture::Capture;
 use mmnormd::dca1000::Frame;
 use mmnormd::dca1000::packet::PacketArrival;
 use mmnormd::lab::LabConfig;
+use mmnormd::lab::calibrate::calibrate;
 use mmnormd::lab::devices::LabDevices;
 use mmnormd::lab::scan::{
     RowRecording, RowSummary, ScanLog, ScanSetup, align_recording, build_capture, run_scan,
@@ -84,7 +86,7 @@ fn focus_x_m(capture: &Capture) -> f64 {
 }
 
 #[test]
-fn forward_and_backward_rows_over_a_point_target_agree_within_a_tenth_of_a_millimetre() {
+fn forward_and_backward_rows_over_a_point_target_agree_and_a_calibration_undoes_a_wrong_config() {
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let scene = dir.path().join("point.toml");
@@ -157,4 +159,40 @@ fn forward_and_backward_rows_over_a_point_target_agree_within_a_tenth_of_a_milli
         (off.0 - off.1).abs() > 2e-4,
         "the check cannot see a 2 ms error"
     );
+
+    // `mmnormd calibrate`'s core on the same rows under a config 2 ms late whose mount is 4 mm
+    // off along the tool's z: it must suggest an offset at which the rows agree again, and the
+    // mount that the lab really has.
+    let recordings = vec![fwd.0.clone(), bwd.0.clone()];
+    let mut wrong = lab.clone();
+    wrong.align.sync_offset_s += 0.002;
+    wrong.align.tcp_from_radar[2] += 0.004;
+    let started = Instant::now();
+    let c = calibrate(&wrong, &setup, &names, &recordings, TARGET_M).unwrap();
+    let mut fixed = lab.clone();
+    fixed.align.sync_offset_s = c.suggested_sync_offset_s;
+    let agree = (focus(&fixed, fwd), focus(&fixed, bwd));
+    println!(
+        "calibration in {:.1} s from a config 2 ms late and 4 mm off: found the target {:?} mm off, rows {:+.4} mm apart; suggests sync_offset_s = {:.5} s (the lab's: {:.5}), under which the rows are {:.4} mm apart; tcp_from_radar z {:.5} m (the lab's: {:.5})",
+        started.elapsed().as_secs_f64(),
+        c.error_in_base_m.map(|e| (e * 1e5).round() / 1e2),
+        c.disagreement_m * 1e3,
+        c.suggested_sync_offset_s,
+        lab.align.sync_offset_s,
+        (agree.0 - agree.1).abs() * 1e3,
+        c.suggested_tcp_from_radar[2],
+        lab.align.tcp_from_radar[2]
+    );
+    assert!(c.disagreement_m.abs() > 2e-4, "{c:?}");
+    assert!((agree.0 - agree.1).abs() < 5e-5, "{c:?}");
+    assert!(
+        (c.suggested_sync_offset_s - lab.align.sync_offset_s).abs() < 1e-3,
+        "{c:?}"
+    );
+    for k in [0, 2] {
+        assert!(
+            (c.suggested_tcp_from_radar[k] - lab.align.tcp_from_radar[k]).abs() < 5e-4,
+            "axis {k}: {c:?}"
+        );
+    }
 }

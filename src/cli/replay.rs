@@ -1,15 +1,16 @@
-//! `mmnormd replay`, `mmnormd export` and `mmnormd mcap recover`.
+//! `mmnormd replay`, `mmnormd export`, `mmnormd calibrate` and `mmnormd mcap recover`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use mmnormd::capture::write_capture_dir;
 use mmnormd::lab::LabConfig;
-use mmnormd::lab::job::{ScanPaths, reconstruct_and_score, replay_capture};
+use mmnormd::lab::calibrate::calibrate;
+use mmnormd::lab::job::{ScanPaths, reconstruct_and_score, replay_capture, replay_rows};
 use mmnormd::record::recover;
-use mmnormd::record::replay::read_scan;
+use mmnormd::record::replay::{RecordedScan, read_scan, replayed_output_names};
 
-fn read(mcap: &Path, config: Option<&Path>) -> Result<(mmnormd::capture::Capture, LabConfig)> {
+fn read_recording(mcap: &Path) -> Result<RecordedScan> {
     let scan = read_scan(mcap)?;
     if let Some(damage) = &scan.read.damage {
         tracing::warn!(
@@ -17,6 +18,11 @@ fn read(mcap: &Path, config: Option<&Path>) -> Result<(mmnormd::capture::Capture
             mcap.display()
         );
     }
+    Ok(scan)
+}
+
+fn read(mcap: &Path, config: Option<&Path>) -> Result<(mmnormd::capture::Capture, LabConfig)> {
+    let scan = read_recording(mcap)?;
     let override_config = config.map(LabConfig::load).transpose()?;
     let (lab, _setup, capture) = replay_capture(&scan, override_config.as_ref())?;
     if capture.antennas() == 0 {
@@ -44,6 +50,55 @@ pub fn replay(mcap: &Path, out: &Path, config: Option<&Path>, quiet: bool) -> Re
         capture.antennas(),
         recon.points_m.len(),
         paths.recon.join("points.ply").display()
+    );
+    Ok(())
+}
+
+/// Calibrates `align.sync_offset_s` and `tcp_from_radar` from a recorded scan of a point
+/// reflector measured at `reflector_in_base_m` (docs/hardware.md §6).
+pub fn calibrate_scan(
+    mcap: &Path,
+    reflector_in_base_m: [f64; 3],
+    config: Option<&Path>,
+) -> Result<()> {
+    let scan = read_recording(mcap)?;
+    let override_config = config.map(LabConfig::load).transpose()?;
+    let (lab, setup, kept) = replay_rows(&scan, override_config.as_ref())?;
+    let rows: Vec<_> = kept.into_iter().map(|(rec, _)| rec).collect();
+    let c = calibrate(
+        &lab,
+        &setup,
+        &replayed_output_names(),
+        &rows,
+        reflector_in_base_m,
+    )
+    .with_context(|| format!("calibrating from {}", mcap.display()))?;
+    let mm = |v: [f64; 3]| {
+        format!(
+            "[{:.2}, {:.2}, {:.2}] mm",
+            v[0] * 1e3,
+            v[1] * 1e3,
+            v[2] * 1e3
+        )
+    };
+    println!(
+        "{} rows, {} antennas; the reflector focuses at {} in the base frame, {} from where it was measured",
+        rows.len(),
+        c.antennas,
+        mm(c.found_in_base_m),
+        mm(c.error_in_base_m)
+    );
+    println!(
+        "forward rows focus it {:+.3} mm from backward rows with sync_offset_s = {:.4}",
+        c.disagreement_m * 1e3,
+        c.sync_offset_s
+    );
+    println!("set in [align]:");
+    println!("sync_offset_s = {:.4}", c.suggested_sync_offset_s);
+    let t = c.suggested_tcp_from_radar;
+    println!(
+        "tcp_from_radar = [{:.5}, {:.5}, {:.5}, {}, {}, {}]   # translation corrected; only as good as the reflector's measured position",
+        t[0], t[1], t[2], t[3], t[4], t[5]
     );
     Ok(())
 }
@@ -82,4 +137,17 @@ pub fn recover_file(damaged: &Path, out: Option<PathBuf>) -> Result<()> {
             .unwrap_or_default()
     );
     Ok(())
+}
+
+/// Three comma-separated numbers (metres) of the flag `flag`.
+pub fn parse_point(text: &str, flag: &str) -> Result<[f64; 3]> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{flag} {text}: expected X,Y,Z in metres"))?;
+    match values.as_slice() {
+        [x, y, z] if values.iter().all(|v| v.is_finite()) => Ok([*x, *y, *z]),
+        _ => bail!("{flag} {text}: expected three finite numbers X,Y,Z in metres"),
+    }
 }

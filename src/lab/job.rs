@@ -500,6 +500,20 @@ pub fn replay_capture(
     scan: &RecordedScan,
     config_override: Option<&LabConfig>,
 ) -> Result<(LabConfig, ScanSetup, Capture), JobError> {
+    let (lab, setup, kept) = replay_rows(scan, config_override)?;
+    let capture = build_capture(&lab, &setup, &kept);
+    Ok((lab, setup, capture))
+}
+
+/// Rows with their alignment, in row order.
+pub type AlignedRows = Vec<(RowRecording, RowAlignment)>;
+
+/// A recording's config, setup and kept rows (each row's attempt that the live run kept,
+/// aligned again), in row order.
+pub fn replay_rows(
+    scan: &RecordedScan,
+    config_override: Option<&LabConfig>,
+) -> Result<(LabConfig, ScanSetup, AlignedRows), JobError> {
     let bad = |what: &str| JobError::Request(format!("the recording's metadata lacks {what}"));
     let meta = scan
         .metadata
@@ -549,8 +563,6 @@ pub fn replay_capture(
             kept.insert(rec.row, (recording, aligned, clean));
         }
     }
-    let kept: Vec<(RowRecording, RowAlignment)> =
-        kept.into_values().map(|(r, a, _)| (r, a)).collect();
-    let capture = build_capture(&lab, &setup, &kept);
-    Ok((lab, setup, capture))
+    let kept: AlignedRows = kept.into_values().map(|(r, a, _)| (r, a)).collect();
+    Ok((lab, setup, kept))
 }

@@ -9,12 +9,14 @@
 //!   score, events), and replay.
 //! - [`simlab`]: the simulated lab in-process; [`scene_frames`]: its radar, rendering each frame
 //!   from where the simulated arm carries it; [`simchain`]: the simulated radar chain alone.
+//! - [`calibrate`]: `align.sync_offset_s` and `tcp_from_radar` from a scan of a point reflector.
 //! - [`raw`]: the radar-only capture of docs/protocols.md B4 (`mmnormd capture raw`).
 //!
 //! Each device's protocol lives in its own module ([`crate::radar`], [`crate::dca1000`],
 //! [`crate::ur`]); this module only sequences them. It never opens a control port
 //! ([`crate::daemon`] does).
 
+pub mod calibrate;
 pub mod config;
 pub mod devices;
 pub mod job;
