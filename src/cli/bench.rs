@@ -64,7 +64,7 @@ pub struct KernelArgs {
     /// The `bench perf` capture at this scale (0.3: 1.05·10⁵ virtual channels).
     #[arg(long, default_value_t = 0.3)]
     scale: f64,
-    /// Edge of the voxel cube.
+    /// Edge of the voxel cube, in voxels (1 mm each).
     #[arg(long, default_value_t = 24)]
     edge: usize,
     /// Timed repeats of each kernel; the medians are reported.
