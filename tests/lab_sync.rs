@@ -16,7 +16,7 @@ use mmnormd::capture::Capture;
 use mmnormd::dca1000::Frame;
 use mmnormd::dca1000::packet::PacketArrival;
 use mmnormd::lab::LabConfig;
-use mmnormd::lab::calibrate::calibrate;
+use mmnormd::lab::calibrate::{calibrate, focus_axis};
 use mmnormd::lab::devices::LabDevices;
 use mmnormd::lab::scan::{
     RowRecording, RowSummary, ScanLog, ScanSetup, align_recording, build_capture, run_scan,
@@ -49,40 +49,11 @@ impl ScanLog for Keep {
 
 const TARGET_M: [f64; 3] = [0.45, -0.20, 0.05];
 
-/// The x (metres) at which the row's echoes focus on the line through the target along x:
-/// the peak of |Σ h·exp(−j2πf(d + offset)/c)| on a 10 µm grid, refined by a parabola.
+/// The x (metres) at which the row's echoes focus on the line through the target along x,
+/// within ±3 mm: the matched filter of `mmnormd calibrate` (tested on a closed-form point
+/// target in `lab::calibrate`).
 fn focus_x_m(capture: &Capture) -> f64 {
-    let c = mmnormd::SPEED_OF_LIGHT_M_PER_S;
-    let grid: Vec<f64> = (-300..=300)
-        .map(|k| TARGET_M[0] + k as f64 * 1e-5)
-        .collect();
-    let power: Vec<f64> = grid
-        .iter()
-        .map(|&x| {
-            let p = [x, TARGET_M[1], TARGET_M[2]];
-            let (mut re, mut im) = (0.0f64, 0.0f64);
-            for a in 0..capture.antennas() {
-                let d = |q: [f64; 3]| {
-                    ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt()
-                };
-                let path = d(capture.tx_m[a]) + d(capture.rx_m[a]) + capture.range_offset_m;
-                for (k, h) in capture.chirp(a).iter().enumerate() {
-                    let phase =
-                        -std::f64::consts::TAU * (capture.plan.frequency_hz(k) * path / c).fract();
-                    let (s, co) = phase.sin_cos();
-                    re += f64::from(h.re) * co - f64::from(h.im) * s;
-                    im += f64::from(h.re) * s + f64::from(h.im) * co;
-                }
-            }
-            re * re + im * im
-        })
-        .collect();
-    let i = (1..power.len() - 1)
-        .max_by(|&a, &b| power[a].total_cmp(&power[b]))
-        .unwrap();
-    let (l, m, r) = (power[i - 1], power[i], power[i + 1]);
-    let shift = 0.5 * (l - r) / (l - 2.0 * m + r);
-    grid[i] + shift * 1e-5
+    focus_axis(capture, TARGET_M, 0, 0.003, 61)
 }
 
 #[test]

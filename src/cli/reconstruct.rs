@@ -108,11 +108,25 @@ pub fn run(
     // the spectral votes).
     config.method = methods[0];
     let imaged = image_volume(&capture, &config, quiet)?;
+    // A simulated capture carries the surface seen from above; the previews draw it under the
+    // points. A truth file that cannot be read only costs the overlay. Read once for all methods.
+    let truth = truth_files(capture_dir).top_points.and_then(|path| {
+        read_points_npy(&path)
+            .map_err(|e| tracing::warn!("{}: {e}; previews without the truth", path.display()))
+            .ok()
+    });
     for method in methods {
         config.method = method;
         let dir = dir_of(method);
         match reconstruct_imaged(&capture, &config, &imaged, quiet) {
-            Ok(recon) => write_outputs(capture_dir, &dir, &config, &recon, &imaged.magnitude)?,
+            Ok(recon) => write_outputs(
+                capture_dir,
+                &dir,
+                &config,
+                &recon,
+                &imaged.magnitude,
+                truth.as_deref(),
+            )?,
             // With several methods, one failing (say, no component for mmNorm) does not discard
             // the others.
             Err(e) if nested => {
@@ -130,21 +144,15 @@ fn write_outputs(
     config: &ReconConfig,
     recon: &Reconstruction,
     magnitude: &[f32],
+    truth: Option<&[[f64; 3]]>,
 ) -> Result<()> {
-    // A simulated capture carries the surface seen from above; the previews draw it under the
-    // points. A truth file that cannot be read only costs the overlay.
-    let truth = truth_files(capture_dir).top_points.and_then(|path| {
-        read_points_npy(&path)
-            .map_err(|e| tracing::warn!("{}: {e}; previews without the truth", path.display()))
-            .ok()
-    });
     output::write_reconstruction(
         &capture_dir.display().to_string(),
         out,
         config,
         recon,
         magnitude,
-        truth.as_deref(),
+        truth,
     )?;
     let s = &recon.summary;
     let stages: Vec<String> = s

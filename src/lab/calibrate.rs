@@ -21,6 +21,7 @@ use nalgebra::{Rotation3, Vector3};
 use rayon::prelude::*;
 
 use super::LabConfig;
+use super::job::AlignedRows;
 use super::scan::{RowRecording, ScanSetup, align_recording, build_capture};
 use crate::SPEED_OF_LIGHT_M_PER_S;
 use crate::capture::Capture;
@@ -78,39 +79,45 @@ pub fn calibrate(
             return Err(CalibrationError::MissingDirection { which });
         }
     }
-    let capture_of = |lab: &LabConfig, direction: Option<i8>| {
-        let mut aligned = Vec::new();
-        for rec in rows
+    // Every row aligned once under a config; captures are built from subsets of that.
+    let align_all = |lab: &LabConfig| {
+        rows.iter()
+            .map(|rec| {
+                align_recording(lab, setup, output_names, rec)
+                    .map(|a| (rec.clone(), a))
+                    .map_err(|e| CalibrationError::Align {
+                        row: rec.row,
+                        message: e.to_string(),
+                    })
+            })
+            .collect::<Result<AlignedRows, _>>()
+    };
+    let capture_of = |lab: &LabConfig, aligned: &AlignedRows, direction: Option<i8>| {
+        let chosen: AlignedRows = aligned
             .iter()
-            .filter(|r| direction.is_none_or(|d| r.direction == d))
-        {
-            let a = align_recording(lab, setup, output_names, rec).map_err(|e| {
-                CalibrationError::Align {
-                    row: rec.row,
-                    message: e.to_string(),
-                }
-            })?;
-            aligned.push((rec.clone(), a));
-        }
-        let capture = build_capture(lab, setup, &aligned);
+            .filter(|(r, _)| direction.is_none_or(|d| r.direction == d))
+            .cloned()
+            .collect();
+        let capture = build_capture(lab, setup, &chosen);
         if capture.antennas() == 0 {
             return Err(CalibrationError::Empty);
         }
         Ok(capture)
     };
-    let all = capture_of(lab, None)?;
+    let aligned = align_all(lab)?;
+    let all = capture_of(lab, &aligned, None)?;
     let found = focus_point(&all, measured_in_base_m, 0.02);
-    let disagreement = |lab: &LabConfig| -> Result<f64, CalibrationError> {
+    let disagreement = |lab: &LabConfig, aligned: &AlignedRows| -> Result<f64, CalibrationError> {
         let x = |d: i8| -> Result<f64, CalibrationError> {
-            let c = capture_of(lab, Some(d))?;
+            let c = capture_of(lab, aligned, Some(d))?;
             Ok(focus_axis(&c, found, 0, 0.005, 41))
         };
         Ok(x(1)? - x(-1)?)
     };
-    let d0 = disagreement(lab)?;
+    let d0 = disagreement(lab, &aligned)?;
     let mut probe = lab.clone();
     probe.align.sync_offset_s += PROBE_S;
-    let d1 = disagreement(&probe)?;
+    let d1 = disagreement(&probe, &align_all(&probe)?)?;
     let slope = (d1 - d0) / PROBE_S;
     // The expected slope is 2v: below a hundredth of that, the rows do not see the reflector.
     let expected = 2.0 * setup.spec.speed_m_per_s;
