@@ -186,6 +186,18 @@ fn bad_scenes_are_refused_naming_field_and_value() {
             "torus",
         ),
         (SMALL.replace("z_m = 0.4", "z_m = 0.01"), "aperture plane"),
+        (
+            format!("{SMALL}\n[physics]\nmodel = \"raytrace\"\n"),
+            "physics.model",
+        ),
+        (
+            format!("{SMALL}\n[physics]\nspecular_cone_deg = 5.0\n"),
+            "physics.specular_cone_deg",
+        ),
+        (
+            format!("{SMALL}\n[physics]\nmodel = \"point-scatterer\"\nedge_spacing_m = 0.0\n"),
+            "physics.edge_spacing_m",
+        ),
     ];
     for (body, needle) in cases {
         let scene = write_scene(dir.path(), &body);

@@ -208,8 +208,12 @@ fn intersect(tri: &Tri, o: [f32; 3], d: [f32; 3], t_max: f32) -> Option<f32> {
     ray_triangle(tri.v0, tri.e1, tri.e2, o, d, t_max)
 }
 
+/// Barycentric slack of [`ray_triangle`]: in f32 a ray through the edge two triangles share
+/// can fall just outside both; the slack closes that crack (a mesh stays watertight to rays).
+const EDGE_SLACK: f32 = 1e-6;
+
 /// Möller–Trumbore: the distance 0 < t < `t_max` at which `o + t·d` meets the triangle
-/// `v0 + u·e1 + v·e2`.
+/// `v0 + u·e1 + v·e2` (edges included, with [`EDGE_SLACK`]).
 #[inline]
 pub(crate) fn ray_triangle(
     v0: [f32; 3],
@@ -227,12 +231,12 @@ pub(crate) fn ray_triangle(
     let inv = 1.0 / det;
     let s = sub(o, v0);
     let u = dot(s, p) * inv;
-    if !(0.0..=1.0).contains(&u) {
+    if !(-EDGE_SLACK..=1.0 + EDGE_SLACK).contains(&u) {
         return None;
     }
     let q = cross(s, e1);
     let v = dot(d, q) * inv;
-    if v < 0.0 || u + v > 1.0 {
+    if v < -EDGE_SLACK || u + v > 1.0 + EDGE_SLACK {
         return None;
     }
     let t = dot(e2, q) * inv;

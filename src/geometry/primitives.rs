@@ -201,6 +201,99 @@ pub fn cylinder_mesh(radius_m: f64, length_m: f64, max_edge_m: f64) -> TriMesh {
     m.welded(1e-12)
 }
 
+/// A closed solid of revolution about z: the profile `(r, z)` runs from a point on the axis to
+/// another point on the axis, each straight piece cut to `max_edge_m`. The mesh is oriented
+/// outwards whichever way the profile runs.
+fn revolve(profile: &[[f64; 2]], max_edge_m: f64) -> TriMesh {
+    let r_max = profile.iter().map(|p| p[0]).fold(0.0, f64::max);
+    let segments = divisions(2.0 * PI * r_max, max_edge_m).max(8);
+    let mut points: Vec<[f64; 2]> = vec![profile[0]];
+    for w in profile.windows(2) {
+        let [a, b] = [w[0], w[1]];
+        let n = divisions(
+            ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt(),
+            max_edge_m,
+        );
+        for k in 1..=n {
+            let f = k as f64 / n as f64;
+            points.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
+        }
+    }
+    let mut m = TriMesh::default();
+    // One vertex for a profile point on the axis, a ring of `segments` otherwise.
+    let mut first = Vec::with_capacity(points.len());
+    for p in &points {
+        first.push(m.vertices_m.len() as u32);
+        if p[0] <= 0.0 {
+            m.vertices_m.push([0.0, 0.0, p[1]]);
+        } else {
+            for s in 0..segments {
+                let phi = 2.0 * PI * s as f64 / segments as f64;
+                m.vertices_m
+                    .push([p[0] * phi.cos(), p[0] * phi.sin(), p[1]]);
+            }
+        }
+    }
+    let at = |k: usize, s: usize| {
+        if points[k][0] <= 0.0 {
+            first[k]
+        } else {
+            first[k] + (s % segments) as u32
+        }
+    };
+    for k in 0..points.len() - 1 {
+        for s in 0..segments {
+            let (a, b, c, d) = (at(k, s), at(k, s + 1), at(k + 1, s + 1), at(k + 1, s));
+            if a != b {
+                m.triangles.push([a, b, c]);
+            }
+            if c != d {
+                m.triangles.push([a, c, d]);
+            }
+        }
+    }
+    if m.signed_volume_m3() < 0.0 {
+        for t in &mut m.triangles {
+            t.swap(1, 2);
+        }
+    }
+    m.welded(1e-12)
+}
+
+/// An open-topped cup: a cylindrical wall of outer `radius_m` and `wall_m` thickness on a
+/// bottom of the same thickness, `height_m` tall, with a flat rim; centred on the origin.
+pub fn cup_mesh(radius_m: f64, height_m: f64, wall_m: f64, max_edge_m: f64) -> TriMesh {
+    let h = height_m / 2.0;
+    let inner = radius_m - wall_m;
+    revolve(
+        &[
+            [0.0, -h],
+            [radius_m, -h],
+            [radius_m, h],
+            [inner, h],
+            [inner, -h + wall_m],
+            [0.0, -h + wall_m],
+        ],
+        max_edge_m,
+    )
+}
+
+/// An open bowl: a hemispherical shell of outer `radius_m` and `wall_m` thickness, opening
+/// upwards, with a flat rim; its bounding box is centred on the origin.
+pub fn bowl_mesh(radius_m: f64, wall_m: f64, max_edge_m: f64) -> TriMesh {
+    let inner = radius_m - wall_m;
+    let arc = |r: f64| {
+        let n = divisions(PI / 2.0 * r, max_edge_m).max(4);
+        (0..=n).map(move |k| {
+            let a = PI / 2.0 * k as f64 / n as f64;
+            [r * a.sin(), -r * a.cos() + radius_m / 2.0]
+        })
+    };
+    let mut profile: Vec<[f64; 2]> = arc(radius_m).collect();
+    profile.extend(arc(inner).collect::<Vec<_>>().into_iter().rev());
+    revolve(&profile, max_edge_m)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,6 +312,13 @@ mod tests {
             2e-3,
         );
         closed_volume_close(&cylinder_mesh(0.03, 0.1, 0.002), PI * 0.0009 * 0.1, 2e-3);
+        let (r, h, w) = (0.04, 0.1, 0.003);
+        let cup_volume = PI * r * r * h - PI * (r - w).powi(2) * (h - w);
+        closed_volume_close(&cup_mesh(r, h, w, 0.002), cup_volume, 3e-3);
+        let bowl_volume = 2.0 / 3.0 * PI * (r.powi(3) - (r - w).powi(3));
+        closed_volume_close(&bowl_mesh(r, w, 0.002), bowl_volume, 5e-3);
+        let bowl = bowl_mesh(r, w, 0.002).bounds().unwrap();
+        assert!((bowl.0[2] + r / 2.0).abs() < 1e-12 && (bowl.1[2] - r / 2.0).abs() < 1e-12);
         let plate = plate_mesh([0.1, 0.05], 0.01);
         assert!((plate.area_m2() - 0.005).abs() < 1e-12);
         assert!(plate.signed_volume_m3().abs() < 1e-15);

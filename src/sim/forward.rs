@@ -38,8 +38,10 @@ use std::f32::consts::PI;
 use num_complex::Complex32;
 use rayon::prelude::*;
 
+mod points;
+
 use super::aperture::{Antennas, Pattern, raster_antennas};
-use super::scene::{ObjectGeometry, Occluder, Scene};
+use super::scene::{ObjectGeometry, Occluder, PatternKind, Physics, Scene};
 use super::surface::{self, Cluster, EdgeSample, Samples};
 use super::truth;
 use crate::SPEED_OF_LIGHT_M_PER_S;
@@ -103,6 +105,8 @@ struct Scatterers {
     /// One BVH per object (empty for point targets) and its front-side occluder lists.
     bvhs: Vec<Bvh>,
     local: Vec<FrontOccluders>,
+    /// The point-scatterer model's scatterers; the surface terms above are then empty.
+    point_model: Option<points::PointScatterers>,
 }
 
 /// Longest per-triangle occluder list kept before falling back to the BVH.
@@ -195,9 +199,14 @@ impl ForwardModel {
         let lambda0_m = plan.first_wavelength_m();
         let (scatterers, truth_mesh) = prepare(scene, view);
         let set = &scene.settings;
+        // The point-scatterer model has no antenna pattern.
+        let pattern = match scene.physics {
+            Physics::PhysicalOptics => scene.aperture.pattern,
+            Physics::PointScatterer(_) => PatternKind::Isotropic,
+        };
         Self {
             scatterers,
-            pattern: Pattern::new(scene.aperture.pattern, scene.aperture.rx_axis),
+            pattern: Pattern::new(pattern, scene.aperture.rx_axis),
             occluder: scene.occluder,
             plan,
             range_offset_m: scene.range_offset_m,
@@ -300,7 +309,10 @@ impl ForwardModel {
     /// Scatterer counts for [`SimStats`].
     fn counts(&self) -> (usize, usize, usize, usize) {
         let s = &self.scatterers;
-        (s.spec.len(), s.diff.len(), s.edges.len(), s.points.len())
+        match &s.point_model {
+            Some(ps) => (ps.surface_samples(), 0, ps.edges.len(), s.points.len()),
+            None => (s.spec.len(), s.diff.len(), s.edges.len(), s.points.len()),
+        }
     }
 }
 
@@ -454,7 +466,12 @@ fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
         edge_object: Vec::new(),
         bvhs: Vec::new(),
         local: Vec::new(),
+        point_model: match &scene.physics {
+            Physics::PhysicalOptics => None,
+            Physics::PointScatterer(model) => Some(points::PointScatterers::new(model)),
+        },
     };
+    let lambda0_m = scene.plan.first_wavelength_m();
     let half_lambda0_m = (scene.plan.first_wavelength_m() / 2.0) as f32;
     let mut rough = Rng::for_stream(scene.seed, ROUGHNESS_STREAM, 0);
     for (index, object) in scene.objects.iter().enumerate() {
@@ -466,6 +483,14 @@ fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
                 s.points.push((f32v(*position_m), amp));
                 s.bvhs.push(Bvh::build(&TriMesh::default()));
                 s.local.push(FrontOccluders::default());
+            }
+            ObjectGeometry::Surface(mesh)
+                if let Physics::PointScatterer(model) = &scene.physics =>
+            {
+                if let Some(ps) = s.point_model.as_mut() {
+                    ps.add_object(model, mesh, id, lambda0_m, (m.reflectivity, m.edge));
+                }
+                push_visibility(&mut s, mesh, view, &object.name);
             }
             ObjectGeometry::Surface(mesh) => {
                 let normals = surface::corner_normals(mesh, set.crease_angle_deg);
@@ -515,21 +540,42 @@ fn prepare(scene: &Scene, view: &ViewRegion) -> (Scatterers, TriMesh) {
                     s.edge_object.extend(std::iter::repeat_n(id, edges.len()));
                     s.edges.extend(edges);
                 }
-                s.bvhs.push(Bvh::build(mesh));
-                // Ray origins sit RAY_OFFSET_M off the surface; allow twice that.
-                let margin = 2.0 * f64::from(RAY_OFFSET_M);
-                let local = FrontOccluders::build(mesh, view, margin, MAX_LOCAL_OCCLUDERS);
-                tracing::debug!(
-                    "{}: {} of {} triangles need the BVH for self-occlusion",
-                    object.name,
-                    local.overflowing(),
-                    mesh.triangles.len()
-                );
-                s.local.push(local);
+                push_visibility(&mut s, mesh, view, &object.name);
             }
         }
     }
     (s, truth::scene_mesh(scene))
+}
+
+/// The object's BVH and its front-side occluder lists, for shadow rays.
+fn push_visibility(s: &mut Scatterers, mesh: &TriMesh, view: &ViewRegion, name: &str) {
+    s.bvhs.push(Bvh::build(mesh));
+    // Ray origins sit RAY_OFFSET_M off the surface; allow twice that.
+    let margin = 2.0 * f64::from(RAY_OFFSET_M);
+    let local = FrontOccluders::build(mesh, view, margin, MAX_LOCAL_OCCLUDERS);
+    tracing::debug!(
+        "{name}: {} of {} triangles need the BVH for self-occlusion",
+        local.overflowing(),
+        mesh.triangles.len()
+    );
+    s.local.push(local);
+}
+
+/// Whether any sample of cluster `c` can face an antenna within `spread` of `centre`, for a
+/// normal cone widened by the window `limit` = (cos, sin) of the widest angle a sample may
+/// be off the bisector.
+#[inline]
+fn cluster_in_view(
+    c: &Cluster,
+    (cos_lim, sin_lim): (f32, f32),
+    centre: [f32; 3],
+    spread: f32,
+) -> bool {
+    let (v, dist) = towards(c.centre, centre);
+    // Widen the cone by the cluster's angular radius and the antennas' spread.
+    let delta = 1.01 * (c.radius_m + spread) / dist;
+    let threshold = cos_lim * (1.0 - 0.5 * delta * delta) - sin_lim * delta;
+    !(sin_lim > 0.0 && dot(v, c.axis) < threshold)
 }
 
 /// One leg of a path, from a scatterer to an antenna: direction, length, the pattern and sheet
@@ -650,17 +696,17 @@ impl Ctx<'_> {
             if rx == tx { *tx_leg } else { self.leg(p, rx) }
         };
 
-        for ((c, &(cos_lim, sin_lim)), &own) in s
+        if let Some(ps) = &s.point_model {
+            count += self.point_scatterers(ps, tx, rxs, (centre, spread), other);
+        }
+
+        for ((c, &limit), &own) in s
             .clusters
             .iter()
             .zip(&s.cluster_limit)
             .zip(&s.cluster_object)
         {
-            let (v, dist) = towards(c.centre, centre);
-            // Widen the cone by the cluster's angular radius and the antennas' spread.
-            let delta = 1.01 * (c.radius_m + spread) / dist;
-            let threshold = cos_lim * (1.0 - 0.5 * delta * delta) - sin_lim * delta;
-            if sin_lim > 0.0 && dot(v, c.axis) < threshold {
+            if !cluster_in_view(c, limit, centre, spread) {
                 continue;
             }
             let faces = [(own, c.triangle, c.axis)];

@@ -10,6 +10,9 @@ use crate::capture::FrequencyPlan;
 use crate::geometry::{self, MeshError, TriMesh};
 use crate::radar::{ProfileError, RadarProfile};
 
+/// Wall thickness of a `cup` or `bowl` without `wall_m`: a ceramic mug's is 3–5 mm.
+const DEFAULT_WALL_M: f64 = 0.004;
+
 /// The TI IWR1443's internal round-trip offset that mmNorm's code adds (docs/mmnorm-reference.md §1).
 pub const DEFAULT_RANGE_OFFSET_M: f64 = 0.15;
 
@@ -24,6 +27,8 @@ struct SceneFile {
     occluder: Option<OccluderSpec>,
     #[serde(default)]
     simulation: SimulationSpec,
+    #[serde(default)]
+    physics: PhysicsSpec,
     #[serde(default, rename = "object")]
     objects: Vec<ObjectSpec>,
 }
@@ -157,6 +162,17 @@ fn default_tessellation() -> f64 {
     0.0025
 }
 
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PhysicsSpec {
+    model: Option<String>,
+    specular_cone_deg: Option<f64>,
+    surface_spacing_m: Option<f64>,
+    edge_spacing_m: Option<f64>,
+    edge_dihedral_deg: Option<f64>,
+    edge_strength: Option<f64>,
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ObjectSpec {
@@ -172,6 +188,7 @@ struct ObjectSpec {
     size_m: Option<Vec<f64>>,
     radius_m: Option<f64>,
     length_m: Option<f64>,
+    wall_m: Option<f64>,
     rcs_m2: Option<f64>,
     reflectivity: Option<f64>,
     diffuse: Option<f64>,
@@ -270,6 +287,54 @@ pub struct SimSettings {
     pub tessellation_m: f64,
 }
 
+/// Which physics turns the scene's surfaces into echoes (`[physics] model`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Physics {
+    /// `"physical-optics"` (the default): coherent PO surface integral, directive diffuse
+    /// scattering and edge diffraction ([`super::forward`]).
+    PhysicalOptics,
+    /// `"point-scatterer"`: an independent, simpler model ([`PointScatterer`]).
+    PointScatterer(PointScatterer),
+}
+
+impl Physics {
+    /// The name the scene file uses.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Physics::PhysicalOptics => "physical-optics",
+            Physics::PointScatterer(_) => "point-scatterer",
+        }
+    }
+}
+
+/// The point-scatterer model: the kind of simulator the mmNorm authors used, written here from
+/// its description only. Surfaces become samples at `surface_spacing_m` that reflect only where
+/// the bisector of their two legs lies within `specular_cone_deg` of their face normal; sharp
+/// edges (dihedral above `edge_dihedral_deg`, or a free rim) become samples at `edge_spacing_m`
+/// that radiate to every antenna that sees them. Every sample's amplitude falls as 1/d of its
+/// round trip d; there is no antenna pattern, no diffuse term and no obliquity factor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointScatterer {
+    pub specular_cone_deg: f64,
+    pub surface_spacing_m: f64,
+    pub edge_spacing_m: f64,
+    pub edge_dihedral_deg: f64,
+    /// An edge sample's strength relative to a surface sample (1: equal points).
+    pub edge_strength: f64,
+}
+
+impl Default for PointScatterer {
+    fn default() -> Self {
+        PointScatterer {
+            specular_cone_deg: 5.0,
+            surface_spacing_m: 0.0015,
+            edge_spacing_m: 0.001,
+            edge_dihedral_deg: 20.0,
+            edge_strength: 1.0,
+        }
+    }
+}
+
 /// A loaded and validated scene.
 #[derive(Debug, Clone)]
 pub struct Scene {
@@ -288,6 +353,7 @@ pub struct Scene {
     /// Seed of the surface roughness phases (the noise seed, or 0).
     pub seed: u64,
     pub settings: SimSettings,
+    pub physics: Physics,
 }
 
 /// Why a scene was refused.
@@ -445,6 +511,7 @@ impl Scene {
             tessellation_m: c.positive("simulation.tessellation_m", s.tessellation_m)?,
         };
 
+        let physics = resolve_physics(&c, &file.physics)?;
         let aperture = resolve_aperture(&c, &file.aperture, lambda0_m)?;
         let noise = match &file.noise {
             Some(n) => Some((c.finite("noise.snr_db", n.snr_db)?, n.seed)),
@@ -491,7 +558,69 @@ impl Scene {
             seed: noise.map_or(0, |n| n.1),
             noise,
             settings,
+            physics,
         })
+    }
+}
+
+fn resolve_physics(c: &Checker<'_>, p: &PhysicsSpec) -> Result<Physics, SceneError> {
+    let model = p.model.as_deref().unwrap_or("physical-optics");
+    match model {
+        "physical-optics" => {
+            let given = [
+                ("specular_cone_deg", p.specular_cone_deg),
+                ("surface_spacing_m", p.surface_spacing_m),
+                ("edge_spacing_m", p.edge_spacing_m),
+                ("edge_dihedral_deg", p.edge_dihedral_deg),
+                ("edge_strength", p.edge_strength),
+            ];
+            if let Some((field, Some(v))) = given.iter().find(|(_, v)| v.is_some()) {
+                return Err(c.fail(
+                    &format!("physics.{field}"),
+                    v,
+                    "belongs to model = \"point-scatterer\"; the physical-optics model is set in [simulation]",
+                ));
+            }
+            Ok(Physics::PhysicalOptics)
+        }
+        "point-scatterer" => {
+            let d = PointScatterer::default();
+            let cone = c.positive(
+                "physics.specular_cone_deg",
+                p.specular_cone_deg.unwrap_or(d.specular_cone_deg),
+            )?;
+            if cone >= 90.0 {
+                return Err(c.fail("physics.specular_cone_deg", cone, "must be below 90°"));
+            }
+            let dihedral = c.positive(
+                "physics.edge_dihedral_deg",
+                p.edge_dihedral_deg.unwrap_or(d.edge_dihedral_deg),
+            )?;
+            if dihedral >= 180.0 {
+                return Err(c.fail("physics.edge_dihedral_deg", dihedral, "must be below 180°"));
+            }
+            Ok(Physics::PointScatterer(PointScatterer {
+                specular_cone_deg: cone,
+                surface_spacing_m: c.positive(
+                    "physics.surface_spacing_m",
+                    p.surface_spacing_m.unwrap_or(d.surface_spacing_m),
+                )?,
+                edge_spacing_m: c.positive(
+                    "physics.edge_spacing_m",
+                    p.edge_spacing_m.unwrap_or(d.edge_spacing_m),
+                )?,
+                edge_dihedral_deg: dihedral,
+                edge_strength: c.non_negative(
+                    "physics.edge_strength",
+                    p.edge_strength.unwrap_or(d.edge_strength),
+                )?,
+            }))
+        }
+        other => Err(c.fail(
+            "physics.model",
+            other,
+            "must be \"physical-optics\" or \"point-scatterer\"",
+        )),
     }
 }
 
@@ -627,13 +756,15 @@ fn resolve_object(
         "plate" | "box" => &["size_m"],
         "sphere" => &["radius_m"],
         "cylinder" => &["radius_m", "length_m"],
+        "cup" => &["radius_m", "length_m", "wall_m"],
+        "bowl" => &["radius_m", "wall_m"],
         "mesh" => &["path", "scale", "recenter"],
         "point" => &["rcs_m2"],
         other => {
             return Err(c.fail(
                 &field("shape"),
                 other,
-                "must be one of plate, box, sphere, cylinder, mesh, point",
+                "must be one of plate, box, sphere, cylinder, cup, bowl, mesh, point",
             ));
         }
     };
@@ -642,6 +773,7 @@ fn resolve_object(
         ("size_m", o.size_m.as_ref().map(|v| shown(v))),
         ("radius_m", o.radius_m.map(|v| shown(&v))),
         ("length_m", o.length_m.map(|v| shown(&v))),
+        ("wall_m", o.wall_m.map(|v| shown(&v))),
         ("path", o.path.as_ref().map(|v| shown(v))),
         ("scale", o.scale.map(|v| shown(&v))),
         ("recenter", o.recenter.map(|v| shown(&v))),
@@ -698,6 +830,22 @@ fn resolve_object(
             required("length_m", o.length_m)?,
             t,
         ),
+        "cup" | "bowl" => {
+            let radius_m = required("radius_m", o.radius_m)?;
+            let wall_m = c.positive(&field("wall_m"), o.wall_m.unwrap_or(DEFAULT_WALL_M))?;
+            if wall_m >= radius_m {
+                return Err(c.fail(&field("wall_m"), wall_m, "must be thinner than radius_m"));
+            }
+            if o.shape == "cup" {
+                let height_m = required("length_m", o.length_m)?;
+                if wall_m >= height_m {
+                    return Err(c.fail(&field("wall_m"), wall_m, "must be thinner than length_m"));
+                }
+                geometry::cup_mesh(radius_m, height_m, wall_m, t)
+            } else {
+                geometry::bowl_mesh(radius_m, wall_m, t)
+            }
+        }
         "mesh" => {
             let rel = o
                 .path
