@@ -312,3 +312,197 @@ fn a_thin_rod_beside_a_plate_is_kept() {
     );
     check_mmnorm(&case, "plate and rod");
 }
+
+/// The scene text of each physics model: physical optics (the default) and point scatterers.
+const PHYSICS: [(&str, &str); 2] = [
+    ("physical optics", ""),
+    (
+        "point scatterers",
+        "[physics]\nmodel = \"point-scatterer\"\n",
+    ),
+];
+
+/// The median height of the points whose x lies in `x_m`, metres.
+fn median_z(points: &[[f64; 3]], x_m: std::ops::Range<f64>) -> f64 {
+    let z: Vec<f64> = points
+        .iter()
+        .filter(|p| x_m.contains(&p[0]))
+        .map(|p| p[2])
+        .collect();
+    mmnormd::eval::quantile(&z, 0.5).unwrap_or(f64::NAN)
+}
+
+/// Two flat tops 8 mm apart in height, side by side: closer than the 5 cm range resolution, so
+/// the image blurs them into one component, and both tops' normals point up, so its RSDF is one
+/// plane and one level (the paper's) leaves a top millimetres off. The split at the transition
+/// gives each top its own level. `objects` holds the low top over x < 0 at `low_m` and the high
+/// one over x > 0 at `low_m` + 8 mm.
+fn check_step(objects: &str, low_m: f64, label: &str) {
+    let aperture = "width_m = 0.14\nheight_m = 0.14\nspacing_m = 0.002\nz_m = 0.24";
+    let high_m = low_m + 0.008;
+    for (name, physics) in PHYSICS {
+        let case = run(aperture, &format!("{physics}{objects}"));
+        let s = &case.recon.summary;
+        let split = s.split.expect("the split ran");
+        let error_mm = |recon: &Reconstruction| {
+            [
+                (median_z(&recon.points_m, -0.04..-0.01) - low_m).abs() * 1e3,
+                (median_z(&recon.points_m, 0.01..0.04) - high_m).abs() * 1e3,
+            ]
+        };
+        let ours = error_mm(&case.recon);
+        println!(
+            "{label}, {name}: {split:?}; top heights off by {:.1} and {:.1} mm",
+            ours[0], ours[1]
+        );
+        assert!(
+            split.components_after > split.components_before,
+            "{label}, {name}: {split:?}"
+        );
+        assert!(
+            ours.iter().all(|e| *e <= 1.5),
+            "{label}, {name}: tops off by {ours:?} mm"
+        );
+        if physics.is_empty() {
+            // The paper's one level per component, once: the scene must need the split.
+            let one_level = reconstruct(
+                &case.capture,
+                &ReconConfig {
+                    split_transitions: false,
+                    ..config(Method::Mmnorm)
+                },
+                true,
+            )
+            .unwrap();
+            let paper = error_mm(&one_level);
+            println!(
+                "{label}, {name}, one level per component: tops off by {:.1} and {:.1} mm",
+                paper[0], paper[1]
+            );
+            assert!(
+                paper.iter().any(|e| *e > 2.0),
+                "{label}: one level per component already finds both tops ({paper:?} mm): the scene no longer tests the split"
+            );
+        }
+        check_mmnorm(&case, &format!("{label}, {name}"));
+    }
+}
+
+#[test]
+fn a_step_gets_a_level_on_each_side() {
+    check_step(
+        "[[object]]\nshape = \"box\"\nsize_m = [0.05, 0.10, 0.02]\nposition_m = [-0.025, 0.0, 0.01]\n\
+         [[object]]\nshape = \"box\"\nsize_m = [0.05, 0.10, 0.028]\nposition_m = [0.025, 0.0, 0.014]\n",
+        0.02,
+        "step",
+    );
+}
+
+#[test]
+fn two_plates_joined_by_a_wall_get_a_level_each() {
+    check_step(
+        "[[object]]\nshape = \"plate\"\nsize_m = [0.05, 0.10]\nposition_m = [-0.025, 0.0, 0.0]\n\
+         [[object]]\nshape = \"plate\"\nsize_m = [0.05, 0.10]\nposition_m = [0.025, 0.0, 0.008]\n\
+         [[object]]\nshape = \"plate\"\nsize_m = [0.008, 0.10]\nposition_m = [0.0, 0.0, 0.004]\nrotation_deg = [0.0, 90.0, 0.0]\n",
+        0.0,
+        "plates and wall",
+    );
+}
+
+/// The fraction of `from` within `tau_m` of some point of `to`, with no alignment (the paper's
+/// 80th-percentile shift is ill-posed on a cup, whose rim and floor lie 6 cm apart).
+fn fraction_within(from: &[[f64; 3]], to: &[[f64; 3]], tau_m: f64) -> f64 {
+    let near = from
+        .iter()
+        .filter(|p| {
+            to.iter()
+                .any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>() <= tau_m * tau_m)
+        })
+        .count();
+    near as f64 / from.len().max(1) as f64
+}
+
+/// An open cup seen from above shows its rim and, 6 cm below, the floor inside it; the wall
+/// between them returns nothing upwards. Both surfaces must come back, under either physics.
+#[test]
+#[ignore = "known failure (issue 40, item 4): under physical optics the cost puts the rim 15 mm low"]
+fn an_open_cup_returns_its_rim_and_its_floor() {
+    let aperture = "width_m = 0.16\nheight_m = 0.16\nspacing_m = 0.002\nz_m = 0.26";
+    for (name, physics) in PHYSICS {
+        let case = run(
+            aperture,
+            &format!(
+                "{physics}[[object]]\nshape = \"cup\"\nradius_m = 0.04\nlength_m = 0.06\nposition_m = [0.0, 0.0, 0.03]\n"
+            ),
+        );
+        let rim: Vec<[f64; 3]> = case.truth.iter().filter(|p| p[2] > 0.05).copied().collect();
+        let floor: Vec<[f64; 3]> = case.truth.iter().filter(|p| p[2] < 0.01).copied().collect();
+        let points = &case.recon.points_m;
+        let (rim_recall, floor_recall, precision) = (
+            fraction_within(&rim, points, 0.005),
+            fraction_within(&floor, points, 0.005),
+            fraction_within(points, &case.truth, 0.005),
+        );
+        println!(
+            "cup, {name}: {} points, {} components; rim recall {rim_recall:.3} ({} truth points), floor recall {floor_recall:.3} ({}), precision {precision:.3} (all at 5 mm)",
+            points.len(),
+            case.recon.summary.components.len(),
+            rim.len(),
+            floor.len()
+        );
+        assert!(
+            rim.len() > 100 && floor.len() > 1000,
+            "cup truth: rim {} floor {}",
+            rim.len(),
+            floor.len()
+        );
+        assert!(rim_recall >= 0.8, "cup, {name}: rim recall {rim_recall}");
+        assert!(
+            floor_recall >= 0.8,
+            "cup, {name}: floor recall {floor_recall}"
+        );
+        assert!(precision >= 0.9, "cup, {name}: precision {precision}");
+    }
+}
+
+/// An open bowl seen from above: its rim and the part of its inside whose normal points into the
+/// aperture (the visible truth). Both must come back, under either physics.
+#[test]
+#[ignore = "known failure (issue 40, item 4): see an_open_cup_returns_its_rim_and_its_floor"]
+fn an_open_bowl_returns_its_rim_and_its_inside() {
+    let aperture = "width_m = 0.16\nheight_m = 0.16\nspacing_m = 0.002\nz_m = 0.26";
+    for (name, physics) in PHYSICS {
+        let case = run(
+            aperture,
+            &format!(
+                "{physics}[[object]]\nshape = \"bowl\"\nradius_m = 0.06\nposition_m = [0.0, 0.0, 0.03]\n"
+            ),
+        );
+        let rim: Vec<[f64; 3]> = case
+            .truth
+            .iter()
+            .filter(|p| p[2] > 0.055)
+            .copied()
+            .collect();
+        let inside: Vec<[f64; 3]> = case.truth.iter().filter(|p| p[2] < 0.05).copied().collect();
+        let points = &case.recon.points_m;
+        let (rim_recall, inside_recall, precision) = (
+            fraction_within(&rim, points, 0.005),
+            fraction_within(&inside, points, 0.005),
+            fraction_within(points, &case.truth, 0.005),
+        );
+        println!(
+            "bowl, {name}: {} points, {} components; rim recall {rim_recall:.3} ({} truth points), inside recall {inside_recall:.3} ({}), precision {precision:.3} (all at 5 mm)",
+            points.len(),
+            case.recon.summary.components.len(),
+            rim.len(),
+            inside.len()
+        );
+        assert!(rim_recall >= 0.8, "bowl, {name}: rim recall {rim_recall}");
+        assert!(
+            inside_recall >= 0.8,
+            "bowl, {name}: inside recall {inside_recall}"
+        );
+        assert!(precision >= 0.9, "bowl, {name}: precision {precision}");
+    }
+}

@@ -13,6 +13,7 @@
 //! - [`kernel`]: `mmnormd bench kernel`, the exact per-antenna kernel's throughput;
 //! - [`stream`]: `mmnormd bench stream`, the DCA1000 receive path's throughput.
 
+pub mod by_physics;
 pub mod cache;
 pub mod coverage;
 pub mod kernel;
@@ -234,6 +235,7 @@ pub fn run_suite(
         not_run: not_run.clone(),
         notes,
         includes,
+        by_physics: by_physics::section(&results, &run_opts.runs_dir)?,
     };
     let md = report::report_md(&info, &results, &stats, &plots, &|f| f.to_string());
     write_atomically(&out.join("report.md"), md.as_bytes())?;

@@ -110,7 +110,7 @@ pub fn results_csv(results: &[CaseResult]) -> String {
     let mut out = String::from(
         "scene,condition,method,f_score,precision,recall,position_error_m,point_error_median_m,\
 point_error_p90_m,rel_error_under_5pct,normal_cos_median,normal_cos_p25,total_s,\
-pose,f_score_raw,points,truth_points,antennas,normals_from,simulate_s",
+pose,f_score_raw,points,truth_points,antennas,normals_from,simulate_s,physics,class",
     );
     for s in STAGES {
         let _ = write!(out, ",{s}_s");
@@ -147,6 +147,8 @@ pose,f_score_raw,points,truth_points,antennas,normals_from,simulate_s",
                 r.antennas.to_string(),
                 m.normals.clone(),
                 num(Some(r.simulate_s).filter(|s| s.is_finite())),
+                r.physics.clone(),
+                r.class.clone(),
             ];
             row.extend(STAGES.iter().map(|s| stage(s)));
             row.push(m.error.clone().unwrap_or_default());
@@ -218,7 +220,10 @@ pub fn nlos_over_los(results: &[CaseResult]) -> Vec<f64> {
         .filter(|r| r.condition == Condition::Los)
         .filter_map(|los| {
             let nlos = results.iter().find(|r| {
-                r.condition == Condition::Nlos && r.scene == los.scene && r.pose == los.pose
+                r.condition == Condition::Nlos
+                    && r.scene == los.scene
+                    && r.pose == los.pose
+                    && r.physics == los.physics
             })?;
             let (l, n) = (median_of(los)?, median_of(nlos)?);
             (l > 0.0).then(|| n / l)
@@ -435,6 +440,8 @@ pub struct RunInfo {
     pub notes: Option<(String, String)>,
     /// Further markdown sections (such as `bench perf --markdown`'s), included before the plots.
     pub includes: Vec<String>,
+    /// The side-by-side section per physics model and object class (`by_physics`), if any.
+    pub by_physics: Option<String>,
 }
 
 /// `report.md`. `link` turns a file name of the output directory into the link to use (so the
@@ -687,6 +694,9 @@ cases only; the others are listed at the end. Running the same command again res
 objects weigh the most. Scene by scene (mmNorm's median point error, the same scene and pose \
 with and without the cardboard): {p}."
         );
+    }
+    if let Some(section) = &info.by_physics {
+        let _ = writeln!(md, "\n{}", section.trim_end());
     }
     for text in &info.includes {
         let _ = writeln!(md, "\n{}", relink(text.trim_end(), link));

@@ -69,11 +69,22 @@ pub struct CaseResult {
     pub scene: String,
     pub pose: Pose,
     pub condition: Condition,
+    /// The physics model the case was simulated under (results written before it was recorded
+    /// were all physical optics).
+    #[serde(default = "physical_optics")]
+    pub physics: String,
+    /// The scene's object class ("" where the suite gives none).
+    #[serde(default)]
+    pub class: String,
     pub capture_key: String,
     pub antennas: usize,
     pub simulate_s: f64,
     pub truth_points: usize,
     pub methods: Vec<MethodResult>,
+}
+
+fn physical_optics() -> String {
+    super::suite::PHYSICAL_OPTICS.to_string()
 }
 
 /// Where things go and how much may run at once.
@@ -386,6 +397,8 @@ pub fn run_case(
         scene: case.scene_name.clone(),
         pose: case.pose,
         condition: case.condition,
+        physics: case.physics.clone(),
+        class: case.class.clone(),
         capture_key,
         antennas: capture.antennas(),
         simulate_s: cached.simulate_s,

@@ -93,6 +93,9 @@ struct SuiteFile {
     tau_m: f64,
     #[serde(default = "default_conditions")]
     conditions: Vec<Condition>,
+    /// The physics models every case is simulated under (`[physics] model` of a scene).
+    #[serde(default = "default_physics")]
+    physics: Vec<String>,
     radar: toml::Table,
     aperture: ApertureSpec,
     noise: Option<NoiseSpec>,
@@ -116,6 +119,22 @@ struct ScenesOnly {
 
 fn default_tau() -> f64 {
     0.015
+}
+
+fn default_physics() -> Vec<String> {
+    vec![PHYSICAL_OPTICS.to_string()]
+}
+
+/// The default physics model; its cases' ids carry no suffix.
+pub const PHYSICAL_OPTICS: &str = "physical-optics";
+
+/// The suffix of a case id under `physics`: none for the default model, `-point` for the
+/// point-scatterer model.
+pub fn physics_suffix(physics: &str) -> String {
+    match physics {
+        PHYSICAL_OPTICS => String::new(),
+        other => format!("-{}", other.split('-').next().unwrap_or(other)),
+    }
 }
 
 fn default_conditions() -> Vec<Condition> {
@@ -192,6 +211,9 @@ fn default_rotated() -> f64 {
 #[serde(deny_unknown_fields)]
 struct SceneSpec {
     name: String,
+    /// The object class the report groups by (such as flat, tall, hollow, clutter).
+    #[serde(default)]
+    class: Option<String>,
     poses: Vec<Pose>,
     #[serde(rename = "object")]
     objects: Vec<toml::Table>,
@@ -205,6 +227,10 @@ pub struct Case {
     pub scene_name: String,
     pub pose: Pose,
     pub condition: Condition,
+    /// The physics model the case is simulated under (`[physics] model`).
+    pub physics: String,
+    /// The scene's object class, or "" where the suite gives none.
+    pub class: String,
     /// A scene file that `mmnormd simulate` runs as it is (absolute paths).
     pub scene_text: String,
     /// The same scene with each file path replaced by the SHA-256 of its contents: what the
@@ -306,6 +332,25 @@ impl Suite {
         if file.conditions.is_empty() {
             return Err(c.field("conditions", "[]", "list at least one of los, nlos"));
         }
+        if file.physics.is_empty() {
+            return Err(c.field(
+                "physics",
+                "[]",
+                "list at least one of \"physical-optics\", \"point-scatterer\"",
+            ));
+        }
+        for (i, model) in file.physics.iter().enumerate() {
+            if !["physical-optics", "point-scatterer"].contains(&model.as_str()) {
+                return Err(c.field(
+                    &format!("physics[{i}]"),
+                    model,
+                    "must be \"physical-optics\" or \"point-scatterer\"",
+                ));
+            }
+            if file.physics[..i].contains(model) {
+                return Err(c.field(&format!("physics[{i}]"), model, "is listed twice"));
+            }
+        }
         let (scenes, scenes_base) = match &file.scenes_from {
             Some(other) if file.scenes.is_empty() => {
                 let other = base.join(other);
@@ -360,13 +405,31 @@ impl Suite {
                     "needs at least one pose and one [[scene.object]]",
                 ));
             }
-            for &pose in &s.poses {
-                for &condition in &file.conditions {
-                    let bases = Bases {
-                        suite: &base,
-                        objects: &scenes_base,
-                    };
-                    cases.push(build_case(&c, &file, &bases, &recon, s, pose, condition)?);
+            if let Some(class) = &s.class {
+                let ok = !class.is_empty()
+                    && class.chars().all(|ch| ch.is_ascii_lowercase() || ch == '_');
+                if !ok {
+                    return Err(c.field(
+                        &format!("scene[{i}].class"),
+                        class,
+                        "use lower-case letters and _",
+                    ));
+                }
+            }
+            for physics in &file.physics {
+                for &pose in &s.poses {
+                    for &condition in &file.conditions {
+                        let bases = Bases {
+                            suite: &base,
+                            objects: &scenes_base,
+                        };
+                        let how = CaseOf {
+                            pose,
+                            condition,
+                            physics,
+                        };
+                        cases.push(build_case(&c, &file, &bases, &recon, s, how)?);
+                    }
                 }
             }
         }
@@ -444,17 +507,33 @@ struct Bases<'a> {
     objects: &'a Path,
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Which variant of a scene a case is.
+struct CaseOf<'a> {
+    pose: Pose,
+    condition: Condition,
+    physics: &'a str,
+}
+
 fn build_case(
     c: &Ctx<'_>,
     file: &SuiteFile,
     base: &Bases<'_>,
     recon: &ReconConfig,
     spec: &SceneSpec,
-    pose: Pose,
-    condition: Condition,
+    how: CaseOf<'_>,
 ) -> Result<Case, SuiteError> {
-    let id = format!("{}-{}-{}", spec.name, pose.name(), condition.name());
+    let CaseOf {
+        pose,
+        condition,
+        physics,
+    } = how;
+    let id = format!(
+        "{}-{}-{}{}",
+        spec.name,
+        pose.name(),
+        condition.name(),
+        physics_suffix(physics)
+    );
     let rotation = pose_rotation(pose, file.poses.rotated_deg);
     // Objects posed about the origin, with their own orientation composed under the pose.
     let mut objects = Vec::new();
@@ -487,7 +566,9 @@ fn build_case(
     }
     // Set the group down on the table, centred at the origin: parse once where posed, read the
     // placed bounds, shift.
-    let provisional = scene_text(c, file, base, &objects, [0.0; 3], None, &id, false, 1e3)?;
+    let provisional = scene_text(
+        c, file, base, &objects, [0.0; 3], None, &id, false, 1e3, physics,
+    )?;
     let scene = parse_scene(c, &provisional, &id)?;
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
@@ -521,6 +602,7 @@ fn build_case(
             &id,
             keyed,
             aperture_z_m,
+            physics,
         )
     };
     let scene_text = text(false)?;
@@ -552,6 +634,8 @@ fn build_case(
         scene_name: spec.name.clone(),
         pose,
         condition,
+        physics: physics.to_string(),
+        class: spec.class.clone().unwrap_or_default(),
         scene_text,
         keyed_text,
         scene,
@@ -610,6 +694,7 @@ fn scene_text(
     id: &str,
     keyed: bool,
     aperture_z_m: f64,
+    physics: &str,
 ) -> Result<String, SuiteError> {
     let mut doc = toml::Table::new();
     doc.insert(
@@ -672,6 +757,11 @@ fn scene_text(
             toml::Value::Array(size.iter().map(|&s| s.into()).collect()),
         );
         doc.insert("occluder".into(), toml::Value::Table(t));
+    }
+    if physics != PHYSICAL_OPTICS {
+        let mut t = toml::Table::new();
+        t.insert("model".into(), physics.into());
+        doc.insert("physics".into(), toml::Value::Table(t));
     }
     let mut list = Vec::new();
     for (k, (table, at)) in objects.iter().enumerate() {
@@ -904,6 +994,32 @@ offset_m = [-0.05, 0.0, 0.0]
     }
 
     #[test]
+    fn each_physics_model_gets_its_own_cases_and_scene_table() {
+        let object = "[[scene]]\nname = \"s\"\nclass = \"hollow\"\nposes = [\"flat\"]\n[[scene.object]]\nshape = \"sphere\"\nradius_m = 0.02\n";
+        let text = format!(
+            "physics = [\"physical-optics\", \"point-scatterer\"]\nconditions = [\"los\"]\n{}",
+            suite_text(object)
+        );
+        let suite = Suite::parse(&text, &path()).unwrap();
+        let ids: Vec<&str> = suite.cases.iter().map(|c| c.id.as_str()).collect();
+        assert_eq!(ids, ["s-flat-los", "s-flat-los-point"]);
+        let [po, ps] = [&suite.cases[0], &suite.cases[1]];
+        assert_eq!(po.scene.physics.name(), "physical-optics");
+        assert_eq!(ps.scene.physics.name(), "point-scatterer");
+        assert!(!po.scene_text.contains("[physics]"));
+        assert!(ps.keyed_text.contains("[physics]"), "{}", ps.keyed_text);
+        assert_ne!(
+            po.keyed_text, ps.keyed_text,
+            "the two share a capture cache key"
+        );
+        assert!(suite.cases.iter().all(|c| c.class == "hollow"));
+        // Without a list, physical optics alone, and the ids are those of earlier runs.
+        let suite = Suite::parse(&suite_text(object), &path()).unwrap();
+        let ids: Vec<&str> = suite.cases.iter().map(|c| c.id.as_str()).collect();
+        assert_eq!(ids, ["s-flat-los", "s-flat-nlos"]);
+    }
+
+    #[test]
     fn refusals_name_the_field_and_the_value() {
         let object = "[[scene]]\nname = \"s\"\nposes = [\"flat\"]\n[[scene.object]]\nshape = \"sphere\"\nradius_m = 0.02\n";
         let cases = [
@@ -931,6 +1047,21 @@ offset_m = [-0.05, 0.0, 0.0]
             (
                 suite_text(&object.replace("\"flat\"", "\"upside\"")),
                 "upside",
+            ),
+            (
+                format!("physics = [\"ray-tracing\"]\n{}", suite_text(object)),
+                "physics[0]",
+            ),
+            (
+                format!(
+                    "physics = [\"point-scatterer\", \"point-scatterer\"]\n{}",
+                    suite_text(object)
+                ),
+                "listed twice",
+            ),
+            (
+                suite_text(&object.replace("poses", "class = \"Hollow\"\nposes")),
+                "scene[0].class",
             ),
         ];
         for (text, want) in cases {

@@ -19,20 +19,31 @@ pub struct Components {
 /// # Panics
 /// If `mask.len()` is not NX·NY·NZ (a caller's bug, not an input error).
 pub fn label_6(mask: &[bool], dims: [usize; 3], min_voxels: usize) -> Components {
+    let keys: Vec<u32> = mask.iter().map(|&m| u32::from(m)).collect();
+    label_6_keyed(&keys, dims, min_voxels)
+}
+
+/// [`label_6`] over keyed voxels: voxels with key 0 are background, and two face neighbours
+/// join only when their keys are equal (so regions already drawn inside a component stay apart).
+///
+/// # Panics
+/// If `keys.len()` is not NX·NY·NZ (a caller's bug, not an input error).
+pub fn label_6_keyed(keys: &[u32], dims: [usize; 3], min_voxels: usize) -> Components {
     let [nx, ny, nz] = dims;
     assert_eq!(
-        mask.len(),
+        keys.len(),
         nx * ny * nz,
-        "mask does not match its dimensions"
+        "keys do not match their dimensions"
     );
-    let mut labels = vec![0u32; mask.len()];
+    let mut labels = vec![0u32; keys.len()];
     let mut sizes = Vec::new();
     let mut stack = Vec::new();
     let mut members = Vec::new();
-    for seed in 0..mask.len() {
-        if !mask[seed] || labels[seed] != 0 {
+    for seed in 0..keys.len() {
+        if keys[seed] == 0 || labels[seed] != 0 {
             continue;
         }
+        let key = keys[seed];
         let label = sizes.len() as u32 + 1;
         labels[seed] = label;
         stack.push(seed);
@@ -41,7 +52,7 @@ pub fn label_6(mask: &[bool], dims: [usize; 3], min_voxels: usize) -> Components
             members.push(v);
             let (x, y, z) = (v / (ny * nz), (v / nz) % ny, v % nz);
             let mut visit = |w: usize| {
-                if mask[w] && labels[w] == 0 {
+                if keys[w] == key && labels[w] == 0 {
                     labels[w] = label;
                     stack.push(w);
                 }
@@ -164,6 +175,14 @@ mod tests {
         assert_eq!(c.labels, vec![0, 0, 1, 1, 0, 2, 2]);
         let all = label_6(&grid(dims, &on), dims, 1);
         assert_eq!(retain_reaching(all.clone(), |_| true), all);
+    }
+
+    #[test]
+    fn keyed_neighbours_join_only_with_their_own_key() {
+        // A 6×1×1 row keyed 1 1 2 2 1 0: three components (the last 1 is apart from the first).
+        let c = label_6_keyed(&[1, 1, 2, 2, 1, 0], [6, 1, 1], 1);
+        assert_eq!(c.sizes, vec![2, 2, 1]);
+        assert_eq!(c.labels, vec![1, 1, 2, 2, 3, 0]);
     }
 
     #[test]

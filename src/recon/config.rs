@@ -271,6 +271,12 @@ pub struct ReconConfig {
     /// reaches `min_component_m3` (it matters only when that is set above it).
     pub min_component_m3: f64,
     pub fallback_component_m3: f64,
+    /// Split components where their column peaks jump by more than `split_jump_m` beyond what
+    /// the normals predict, and choose a level per region (paper §8; `recon/split.rs`). False
+    /// keeps the paper's one level per component.
+    pub split_transitions: bool,
+    /// The jump, metres, that splits a component.
+    pub split_jump_m: f64,
     pub integration: Integration,
     pub optimisation: Optimisation,
     pub auto_volume: AutoVolume,
@@ -335,6 +341,8 @@ impl Default for ReconConfig {
             max_mask_box_m3: 0.03,
             min_component_m3: 4.5e-6,
             fallback_component_m3: 4.5e-6,
+            split_transitions: true,
+            split_jump_m: 0.004,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
             auto_volume: AutoVolume::default(),
@@ -425,6 +433,12 @@ impl ReconConfig {
             self.fallback_component_m3,
             self.fallback_component_m3 >= 0.0,
             "must not be negative",
+        )?;
+        check(
+            "split_jump_m",
+            self.split_jump_m,
+            self.split_jump_m > 0.0 && self.split_jump_m.is_finite(),
+            "must be a positive number of metres",
         )?;
         check(
             "raster_tolerance",

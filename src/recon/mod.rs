@@ -29,6 +29,7 @@ pub mod output;
 pub mod pipeline;
 pub mod rma;
 pub mod rsdf;
+pub mod split;
 pub mod subset;
 pub mod threshold;
 pub mod trace;

@@ -26,6 +26,7 @@ use super::near_echo::{NearEchoCanceller, without_near_echoes};
 use super::normals::{Candidates, normal_field};
 use super::rma::{RmaReport, rma_image};
 use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
+use super::split::{SplitSummary, split_at_transitions};
 use super::trace::SampledField;
 use super::volume::{AutoReport, Core, VolumeError, select};
 use crate::capture::{Capture, InvalidCapture};
@@ -98,6 +99,9 @@ pub struct Summary {
     pub stage_s: Vec<(String, f64)>,
     pub image_peak: f32,
     pub mask: Option<MaskSummary>,
+    /// How the components were split at sharp transitions, when they were.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub split: Option<SplitSummary>,
     pub components: Vec<ComponentSummary>,
     pub optimisation: Option<OptimisationReport>,
     pub interferometric_reference_z_m: Option<f64>,
@@ -473,6 +477,7 @@ fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (S
         stage_s: Vec::new(),
         image_peak,
         mask: None,
+        split: None,
         components: Vec::new(),
         optimisation: None,
         interferometric_reference_z_m: None,
@@ -616,6 +621,22 @@ fn mmnorm_fields(
             fallback_voxels: min_voxels,
             fallback_m3: config.fallback_component_m3,
         });
+    }
+    if config.split_transitions {
+        let (split, report) = split_at_transitions(
+            &labelled,
+            magnitude,
+            &normals,
+            grid.dims,
+            grid.voxel_m,
+            config.split_jump_m,
+            min_voxels,
+        );
+        // A split that leaves nothing (every region under the size floor) keeps the components.
+        if !split.sizes.is_empty() {
+            labelled = split;
+        }
+        summary.split = Some(report);
     }
     stages.lap("components");
 
