@@ -392,6 +392,22 @@ pub fn simulate_with(scene: &Scene, progress: impl FnOnce(u64) -> Progress) -> S
     }
 }
 
+/// The direction shadow rays leave an edge sample by: a rim's (one face, `n1 == n2`) normal
+/// turned to the side `towards_tx` lies on, or a crease's normal bisector (both face normals
+/// point into the open side, convex or not).
+fn edge_offset_dir(e: &EdgeSample, towards_tx: [f32; 3]) -> [f32; 3] {
+    if e.n1 == e.n2 {
+        if dot(e.n1, towards_tx) >= 0.0 {
+            e.n1
+        } else {
+            scale(e.n1, -1.0)
+        }
+    } else {
+        let m = add(e.n1, e.n2);
+        scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
+    }
+}
+
 fn add_sheet_reflection(
     plan: &FrequencyPlan,
     range_offset_m: f64,
@@ -798,16 +814,7 @@ impl Ctx<'_> {
             if !(rim || outside(t.u)) {
                 continue;
             }
-            let offset_dir = if rim {
-                if dot(e.n1, t.u) >= 0.0 {
-                    e.n1
-                } else {
-                    scale(e.n1, -1.0)
-                }
-            } else {
-                let m = add(e.n1, e.n2);
-                scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
-            };
+            let offset_dir = edge_offset_dir(e, t.u);
             let faces = [(own, e.faces[0], e.n1), (own, e.faces[1], e.n2)];
             let mut tx_clear: Option<bool> = None;
             for (k, &rx) in rxs.iter().enumerate() {

@@ -23,7 +23,7 @@ use num_complex::Complex32;
 
 use super::{Ctx, Leg};
 use crate::geometry::TriMesh;
-use crate::geometry::vec3::{add, dot, scale};
+use crate::geometry::vec3::{add, dot};
 use crate::signal::ToneAccumulator;
 use crate::sim::scene::PointScatterer;
 use crate::sim::surface::{self, Cluster, EdgeSample, Samples};
@@ -161,18 +161,7 @@ impl Ctx<'_> {
         for ((e, &weight), &own) in ps.edges.iter().zip(&ps.edge_weight).zip(&ps.edge_object) {
             let p = e.position;
             let t = self.leg(p, tx);
-            // Shadow rays leave a rim on the TX's side and a crease along the bisector of its normals.
-            let offset_dir = if e.n1 == e.n2 {
-                if dot(e.n1, t.u) >= 0.0 {
-                    e.n1
-                } else {
-                    scale(e.n1, -1.0)
-                }
-            } else {
-                // Both face normals point into the open side, convex or not.
-                let m = add(e.n1, e.n2);
-                scale(m, 1.0 / dot(m, m).sqrt().max(1e-6))
-            };
+            let offset_dir = super::edge_offset_dir(e, t.u);
             let faces = [(own, e.faces[0], e.n1), (own, e.faces[1], e.n2)];
             let mut tx_clear: Option<bool> = None;
             for (k, &rx) in rxs.iter().enumerate() {
