@@ -84,16 +84,25 @@ classes are the suite's `class` of each scene.\n"
         header.join(" "),
         "---|".repeat(models.len())
     );
+    // Each (class, model)'s cases and statistics, read once for both tables.
+    let mut by_class: Vec<(&str, &str, Vec<CaseResult>, Stats)> = Vec::new();
+    for &class in &classes {
+        for &model in &models {
+            let cases = subset(model, Some(class));
+            if !cases.is_empty() {
+                let stats = gather(&cases, runs_dir)?;
+                by_class.push((class, model, cases, stats));
+            }
+        }
+    }
     let mut per_model = Vec::new();
     for &model in &models {
         let cases = subset(model, None);
         let stats = gather(&cases, runs_dir)?;
         let point_errors: Vec<f64> = stats.points[0].iter().map(|r| r[0]).collect();
         let mut behind = Vec::new();
-        for &class in &classes {
-            let of_class = subset(model, Some(class));
-            let s = gather(&of_class, runs_dir)?;
-            if let (Some(ours), Some(bp)) = (f_median(&s, 0), f_median(&s, 1))
+        for (class, _, _, s) in by_class.iter().filter(|(_, m, _, _)| *m == model) {
+            if let (Some(ours), Some(bp)) = (f_median(s, 0), f_median(s, 1))
                 && ours <= bp
             {
                 behind.push(format!("{class} ({ours:.2} vs {bp:.2})"));
@@ -193,31 +202,24 @@ two depths (a cup's rim and floor): the alignment then moves the whole cloud by 
         md,
         "| class | physics | cases | mmNorm F | precision | recall | F raw | point error | Backprojection F | Interferometric F |\n|---|---|---|---|---|---|---|---|---|---|"
     );
-    for &class in &classes {
-        for &model in &models {
-            let cases = subset(model, Some(class));
-            if cases.is_empty() {
-                continue;
-            }
-            let stats = gather(&cases, runs_dir)?;
-            let refs: Vec<&CaseResult> = cases.iter().collect();
-            let med = |pick: fn(&crate::eval::Metrics) -> f64| {
-                two(quantile(&mmnorm_metric(&refs, pick), 0.5))
-            };
-            let errors: Vec<f64> = stats.points[0].iter().map(|r| r[0]).collect();
-            let _ = writeln!(
-                md,
-                "| {class} | {model} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                cases.len(),
-                two(f_median(&stats, 0)),
-                med(|m| m.precision),
-                med(|m| m.recall),
-                med(|m| m.f_score_raw),
-                mm(quantile(&errors, 0.5)),
-                two(f_median(&stats, 1)),
-                two(f_median(&stats, 2)),
-            );
-        }
+    for (class, model, cases, stats) in &by_class {
+        let refs: Vec<&CaseResult> = cases.iter().collect();
+        let med = |pick: fn(&crate::eval::Metrics) -> f64| {
+            two(quantile(&mmnorm_metric(&refs, pick), 0.5))
+        };
+        let errors: Vec<f64> = stats.points[0].iter().map(|r| r[0]).collect();
+        let _ = writeln!(
+            md,
+            "| {class} | {model} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            cases.len(),
+            two(f_median(stats, 0)),
+            med(|m| m.precision),
+            med(|m| m.recall),
+            med(|m| m.f_score_raw),
+            mm(quantile(&errors, 0.5)),
+            two(f_median(stats, 1)),
+            two(f_median(stats, 2)),
+        );
     }
     Ok(Some(md))
 }

@@ -13,7 +13,7 @@ use serde::Deserialize;
 
 use crate::recon::ReconConfig;
 use crate::recon::config::KnownOccluder;
-use crate::sim::scene::ObjectGeometry;
+use crate::sim::scene::{ObjectGeometry, Physics};
 use crate::sim::{Scene, SceneError};
 
 /// Why a suite was refused. Each variant names the file and, where there is one, the field.
@@ -126,7 +126,7 @@ fn default_physics() -> Vec<String> {
 }
 
 /// The default physics model; its cases' ids carry no suffix.
-pub const PHYSICAL_OPTICS: &str = "physical-optics";
+pub const PHYSICAL_OPTICS: &str = Physics::MODELS[0];
 
 /// The suffix of a case id under `physics`: none for the default model, `-point` for the
 /// point-scatterer model.
@@ -340,7 +340,7 @@ impl Suite {
             ));
         }
         for (i, model) in file.physics.iter().enumerate() {
-            if !["physical-optics", "point-scatterer"].contains(&model.as_str()) {
+            if !Physics::MODELS.contains(&model.as_str()) {
                 return Err(c.field(
                     &format!("physics[{i}]"),
                     model,

@@ -298,11 +298,14 @@ pub enum Physics {
 }
 
 impl Physics {
+    /// Every model's name, as the scene file gives it, the default first.
+    pub const MODELS: [&'static str; 2] = ["physical-optics", "point-scatterer"];
+
     /// The name the scene file uses.
     pub fn name(&self) -> &'static str {
         match self {
-            Physics::PhysicalOptics => "physical-optics",
-            Physics::PointScatterer(_) => "point-scatterer",
+            Physics::PhysicalOptics => Physics::MODELS[0],
+            Physics::PointScatterer(_) => Physics::MODELS[1],
         }
     }
 }
