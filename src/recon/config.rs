@@ -6,6 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use super::isosurface::ComponentGains;
 pub use super::subset::SubsetRule;
 
 /// Which reconstruction to run.
@@ -210,6 +211,20 @@ pub struct Optimisation {
     /// among the antennas its simulated echo dominates) or `strongest` (the authors' measured
     /// filter alone).
     pub subset: SubsetRule,
+    /// How the components' simulated echoes are weighed against each other in a joint choice:
+    /// `common` (one gain for all, Eq. 11 as printed) or `fitted` (each antenna fits each
+    /// component's gain, so a level is judged by where its echo falls, not by how strong the
+    /// simulation makes it; `recon::isosurface`).
+    pub component_gains: ComponentGains,
+    /// Candidates lie within this many range resolutions (c/2B) of the component's
+    /// |S|-weighted level (`recon::pipeline`, [`super::isosurface::weighted_constant`]); 0
+    /// searches the whole RSDF range as the paper does.
+    pub level_band_resolutions: f64,
+    /// A component's level leaves the candidate nearest its |S|-weighted level only when the
+    /// per-antenna cost gain is significant at this paired t (`recon::isosurface`); 0 (the
+    /// default: it helped under one physics model and hurt under the other) takes the cost's
+    /// minimum as the paper does.
+    pub evidence_t: f64,
 }
 
 impl Default for Optimisation {
@@ -227,6 +242,9 @@ impl Default for Optimisation {
             near_echo_ratio: 0.3,
             specular_window_deg: [10.0, 20.0],
             subset: SubsetRule::PerComponent,
+            component_gains: ComponentGains::Fitted,
+            level_band_resolutions: 0.25,
+            evidence_t: 0.0,
         }
     }
 }
@@ -458,6 +476,18 @@ impl ReconConfig {
             o.bound_inset_m,
             o.bound_inset_m >= 0.0,
             "must not be negative",
+        )?;
+        check(
+            "optimisation.level_band_resolutions",
+            o.level_band_resolutions,
+            (0.0..=10.0).contains(&o.level_band_resolutions),
+            "must lie in [0, 10] range resolutions (0: the whole RSDF range)",
+        )?;
+        check(
+            "optimisation.evidence_t",
+            o.evidence_t,
+            (0.0..=100.0).contains(&o.evidence_t),
+            "must lie in [0, 100] (0: the cost's minimum)",
         )?;
         check(
             "optimisation.antennas",

@@ -707,20 +707,30 @@ fn mmnorm_points(
         candidate_sets,
         step_m,
     } = shared;
+    let weighted = |n: usize| {
+        let values = component_values(grid, &fields[n], magnitude);
+        let all = candidates(ranges[n].0, ranges[n].1, *step_m, 0.0);
+        weighted_constant(&values, &all)
+    };
     let constants: Vec<f64> = match isosurface {
         Isosurface::Center => ranges
             .iter()
             .map(|&(lo, hi)| centre_constant(lo, hi))
             .collect(),
-        Isosurface::Weighted => (0..fields.len())
-            .map(|n| {
-                let values = component_values(grid, &fields[n], magnitude);
-                let all = candidates(ranges[n].0, ranges[n].1, *step_m, 0.0);
-                weighted_constant(&values, &all)
-            })
-            .collect(),
+        Isosurface::Weighted => (0..fields.len()).map(weighted).collect(),
         Isosurface::Optimized => {
-            let report = optimise(capture, fields, candidate_sets, &config.optimisation, quiet)?;
+            let o = &config.optimisation;
+            let priors: Vec<f64> = (0..fields.len()).map(weighted).collect();
+            let band_m = o.level_band_resolutions * capture.plan.range_bin_m();
+            let banded: Vec<Vec<f64>> = if band_m > 0.0 {
+                (0..fields.len())
+                    .map(|n| within_band(&candidate_sets[n], priors[n], band_m))
+                    .collect()
+            } else {
+                candidate_sets.clone()
+            };
+            let priors = (o.evidence_t > 0.0).then_some(priors.as_slice());
+            let report = optimise(capture, fields, &banded, priors, o, quiet)?;
             let c = report.components.iter().map(|c| c.constant).collect();
             summary.optimisation = Some(report);
             c
@@ -755,6 +765,24 @@ fn mmnorm_points(
     }
     stages.lap("points");
     Ok((points, Some(point_normals), comps))
+}
+
+/// The candidates within `band_m` of `level`; the nearest one when none is.
+fn within_band(candidates: &[f64], level: f64, band_m: f64) -> Vec<f64> {
+    let inside: Vec<f64> = candidates
+        .iter()
+        .copied()
+        .filter(|c| (c - level).abs() <= band_m)
+        .collect();
+    if !inside.is_empty() {
+        return inside;
+    }
+    candidates
+        .iter()
+        .copied()
+        .min_by(|a, b| (a - level).abs().total_cmp(&(b - level).abs()))
+        .into_iter()
+        .collect()
 }
 
 /// The flat index in `grid` of the voxel centred at `p` (a centre of a sub-grid of `grid`).
@@ -1035,5 +1063,17 @@ mod tests {
         };
         let e = bad.validate().unwrap_err().to_string();
         assert!(e.contains("occluder.refractive_index = 0.5"), "{e}");
+    }
+
+    /// The band keeps the candidates within its half-width of the level, and the nearest one
+    /// when it holds none.
+    #[test]
+    fn the_band_keeps_candidates_near_the_weighted_level() {
+        let all: Vec<f64> = (0..10).map(|i| 0.002 * f64::from(i)).collect();
+        let kept = within_band(&all, 0.0101, 0.0045);
+        assert_eq!(kept.len(), 5, "{kept:?}");
+        assert!((kept[0] - 0.006).abs() < 1e-12 && (kept[4] - 0.014).abs() < 1e-12);
+        assert_eq!(within_band(&all, 0.0101, 0.0005), vec![all[5]]);
+        assert_eq!(within_band(&all, 0.05, 0.001), vec![all[9]]);
     }
 }
