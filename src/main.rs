@@ -180,6 +180,9 @@ enum CaptureCommand {
     /// Configure the radar and the DCA1000, record N frames, and write adc_data.bin (TI's
     /// layout, bit-exact) and report.json (packets, loss, reordering, flagged frames).
     Raw(cli::capture::RawArgs),
+    /// Decode an adc_data.bin under a lab config's profile, lvds_mode and iq_order: writes
+    /// samples.npy (complex64, frames × chirps × RX × samples) and range_profile.png.
+    Decode(cli::capture::DecodeArgs),
 }
 
 #[derive(Subcommand)]
@@ -352,6 +355,9 @@ fn main() -> std::process::ExitCode {
         Command::Capture {
             which: CaptureCommand::Raw(a),
         } => cli::capture::raw(a, args.quiet),
+        Command::Capture {
+            which: CaptureCommand::Decode(a),
+        } => cli::capture::decode(a),
         Command::Sim {
             which: SimCommand::Radar(a),
         } => cli::capture::sim_radar(a, args.quiet),

@@ -6,7 +6,6 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use mmnormd::dca1000::board::BoardError;
-use mmnormd::dca1000::samples::FrameLayout;
 use mmnormd::dca1000::sim::AdcStream;
 use mmnormd::dca1000::udp::UdpBoard;
 use mmnormd::lab::LabConfig;
@@ -114,10 +113,44 @@ fn a_raster_row_is_configured_captured_and_recovered_bit_exactly() {
     assert!(report.capture.flagged_frame_indices.is_empty());
     assert!(report.radar_commands.iter().all(|c| c.attempts == 1));
     // Decoding recovers the quantised simulated samples of every RX.
-    let layout = FrameLayout::from_profile(&profile(&b.lab), b.lab.dca1000.iq_order).unwrap();
+    let layout = b.lab.dca1000.layout(&profile(&b.lab)).unwrap();
     let first = layout.decode(&adc[..source.frame_bytes]).unwrap();
     assert_eq!(first.len(), 4 * layout.samples_per_chirp);
     assert!(first.iter().any(|c| c.re != 0 || c.im != 0));
+    // `capture decode` turns the file into the same samples, shaped frames × chirps × RX ×
+    // samples, and draws the range profile.
+    let decoded_dir = out.path().join("decoded");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args(["-q", "capture", "decode"])
+        .arg(out.path().join("adc_data.bin"))
+        .args(["--config", "config/sim.toml", "--out"])
+        .arg(&decoded_dir)
+        .output()
+        .unwrap();
+    println!(
+        "capture decode: {}",
+        String::from_utf8_lossy(&run.stdout).trim()
+    );
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let npy = std::fs::read(decoded_dir.join("samples.npy")).unwrap();
+    let array = mmnormd::capture::npy::parse(&npy).unwrap();
+    assert_eq!(array.descr, "<c8");
+    assert_eq!(
+        array.shape,
+        vec![
+            frames as usize,
+            layout.chirps_per_frame,
+            4,
+            layout.samples_per_chirp
+        ]
+    );
+    let re = f32::from_le_bytes(array.data[8..12].try_into().unwrap());
+    assert_eq!(re, f32::from(first[1].re));
+    assert!(decoded_dir.join("range_profile.png").exists());
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
     for key in [

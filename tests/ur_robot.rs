@@ -718,3 +718,149 @@ fn power_on_and_brake_release_poll_until_running() {
         "no program runs after a power cycle"
     );
 }
+
+/// A controller whose first package comes 40 ms after START (Nagle on its side is enough) is
+/// not a stall at 500 Hz, where three periods are 6 ms: the first package has its own
+/// allowance, and the session goes on in segment 1.
+#[test]
+fn a_late_first_package_is_waited_for() {
+    let _timing = untimed();
+    let sim = sim(
+        UrSimConfig::default(),
+        Faults {
+            first_package_delay_s: 0.040,
+            ..Faults::default()
+        },
+    );
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    let mut connected_at = None;
+    let first = loop {
+        match client
+            .events()
+            .recv_timeout(Duration::from_secs(5))
+            .unwrap()
+        {
+            RtdeEvent::Connected { at_host_s, .. } => connected_at = Some(at_host_s),
+            RtdeEvent::Sample(s) => break s,
+            RtdeEvent::Gap { reason, .. } => panic!("gap before the first package: {reason}"),
+            _ => {}
+        }
+    };
+    let waited_ms = (first.host_s - connected_at.unwrap()) * 1e3;
+    println!(
+        "late first package: came {waited_ms:.1} ms after the setup, segment {}",
+        first.segment
+    );
+    assert_eq!(first.segment, 1);
+    assert!(waited_ms >= 30.0, "{waited_ms}");
+}
+
+/// A controller that accepts the setup and closes at once is retried after 0.1, 0.2, 0.4, 0.8 s
+/// … (the backoff is reset only by a session that streamed for 5 s): at most 5 connections in
+/// 2 s, never a storm.
+#[test]
+fn a_controller_that_closes_after_setup_is_retried_with_a_doubling_backoff() {
+    let _timing = untimed();
+    let sim = sim(
+        UrSimConfig::default(),
+        Faults {
+            close_after_start: true,
+            ..Faults::default()
+        },
+    );
+    let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    let start = Instant::now();
+    let mut connections = Vec::new();
+    while start.elapsed() < Duration::from_secs(2) {
+        if let Ok(RtdeEvent::Connected { at_host_s, .. }) =
+            client.events().recv_timeout(Duration::from_millis(50))
+        {
+            connections.push(at_host_s);
+        }
+    }
+    let intervals: Vec<f64> = connections.windows(2).map(|w| w[1] - w[0]).collect();
+    println!(
+        "closed after setup: {} connections in 2 s, intervals {intervals:.3?} s",
+        connections.len()
+    );
+    assert!((3..=5).contains(&connections.len()), "{connections:?}");
+    for (i, dt) in intervals.iter().enumerate() {
+        let backoff = 0.1 * f64::from(1 << (i + 1)) / 2.0;
+        assert!(
+            *dt >= backoff * 0.9,
+            "interval {i} {dt} s, backoff {backoff} s"
+        );
+    }
+}
+
+/// `robot log` against a controller that never sends a package exits non-zero, says so, and
+/// leaves a CSV with its header.
+#[test]
+fn robot_log_without_a_package_fails_and_keeps_the_header() {
+    let _timing = untimed();
+    let sim = sim(
+        UrSimConfig::default(),
+        Faults {
+            close_after_start: true,
+            ..Faults::default()
+        },
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("rtde.csv");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args(["-q", "robot", "log", "--host", "127.0.0.1", "--rtde-port"])
+        .arg(sim.rtde_addr().port().to_string())
+        .args(["--seconds", "1", "--out"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!(
+        "robot log, no package: exit {:?}: {}",
+        out.status.code(),
+        stderr.trim()
+    );
+    assert!(!out.status.success());
+    assert!(stderr.contains("no RTDE package"), "{stderr}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 1, "{text}");
+    assert!(lines[0].starts_with("host_time_s,segment,timestamp,actual_TCP_pose_0"));
+}
+
+/// An input register one client holds is `IN_USE` for another until the holder disconnects,
+/// as on a controller.
+#[test]
+fn an_input_held_by_one_client_is_in_use_for_another() {
+    let _timing = untimed();
+    let sim = sim(UrSimConfig::default(), Faults::default());
+    let holder = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    next_event(&holder, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Sample(_))
+    })
+    .unwrap();
+    let second = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+    let Some(RtdeEvent::Failed(e)) = next_event(&second, Duration::from_secs(5), |e| {
+        matches!(e, RtdeEvent::Failed(_))
+    }) else {
+        panic!("expected IN_USE");
+    };
+    println!("second client: {e}");
+    assert!(e.to_string().contains("`input_int_register_24`") && e.to_string().contains("IN_USE"));
+    holder.shutdown();
+    // The holder's connection ends with its thread; the register is free again.
+    let mut freed = false;
+    for _ in 0..50 {
+        let third = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
+        if next_event(&third, Duration::from_secs(2), |e| {
+            matches!(e, RtdeEvent::Sample(_) | RtdeEvent::Failed(_))
+        })
+        .is_some_and(|e| matches!(e, RtdeEvent::Sample(_)))
+        {
+            freed = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(freed, "the register was not released");
+}

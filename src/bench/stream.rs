@@ -13,7 +13,7 @@ use std::time::Instant;
 use crate::dca1000::fault::{FaultConfig, FaultInjector};
 use crate::dca1000::packet::packetize;
 use crate::dca1000::reassembler::Reassembler;
-use crate::dca1000::samples::{FrameLayout, IqOrder};
+use crate::dca1000::samples::{FrameLayout, IqOrder, Lanes};
 use crate::signal::Rng;
 
 /// The real stream rate of the mmNorm profile, bytes per second.
@@ -42,6 +42,7 @@ pub fn run_stream_bench(frames: usize, repeats: usize, faults: bool) -> StreamBe
         samples_per_chirp: 512,
         rx_count: 4,
         iq_order: IqOrder::IFirst,
+        lanes: Lanes::Four,
     };
     let frame_bytes = layout.frame_bytes();
     let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);

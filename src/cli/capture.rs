@@ -80,6 +80,71 @@ pub fn raw(args: RawArgs, quiet: bool) -> Result<()> {
 }
 
 #[derive(clap::Args)]
+pub struct DecodeArgs {
+    /// The raw file (adc_data.bin).
+    file: PathBuf,
+    /// Lab config: its [radar] profile, [dca1000] iq_order and [dca1000.fpga] lvds_mode.
+    #[arg(long)]
+    config: PathBuf,
+    /// Output directory (samples.npy, range_profile.png).
+    #[arg(long)]
+    out: PathBuf,
+    /// Replace samples.npy and range_profile.png if they exist.
+    #[arg(long)]
+    force: bool,
+}
+
+pub fn decode(args: DecodeArgs) -> Result<()> {
+    let lab = LabConfig::load(&args.config)?;
+    let profile = RadarProfile::from_cfg_file(&lab.radar.profile)?;
+    let layout = lab.dca1000.layout(&profile).with_context(|| {
+        format!(
+            "{} and {}",
+            args.config.display(),
+            lab.radar.profile.display()
+        )
+    })?;
+    let (npy_path, png_path) = (
+        args.out.join("samples.npy"),
+        args.out.join("range_profile.png"),
+    );
+    for p in [&npy_path, &png_path] {
+        anyhow::ensure!(
+            args.force || !p.exists(),
+            "{} exists; pass --force to replace it",
+            p.display()
+        );
+    }
+    let bytes =
+        std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
+    let decoded = mmnormd::lab::decode::decode(&bytes, &layout, &args.file.display().to_string())?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    mmnormd::capture::dir::write_atomically(&npy_path, &decoded.npy())?;
+    let plan = profile.frequency_plan();
+    let range_bin_m =
+        299_792_458.0 / (2.0 * plan.frequency_step_hz.abs() * plan.samples_per_chirp as f64);
+    let profiles = decoded.range_profiles_db();
+    let title = format!(
+        "Range profile, {} frames x {} chirps",
+        decoded.frames, decoded.chirps
+    );
+    mmnormd::lab::decode::write_range_profile_png(&profiles, range_bin_m, &title, &png_path)?;
+    println!(
+        "{} frames x {} chirps x {} RX x {} samples ({:?} lanes, {}) -> {} and {}",
+        decoded.frames,
+        decoded.chirps,
+        decoded.rx,
+        decoded.samples,
+        layout.lanes,
+        layout.iq_order.name(),
+        npy_path.display(),
+        png_path.display()
+    );
+    Ok(())
+}
+
+#[derive(clap::Args)]
 pub struct SimRadarArgs {
     /// Lab config: [dca1000] addresses (loopback only) and the [sim] section.
     #[arg(long)]

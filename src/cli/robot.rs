@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, Result, bail};
 use mmnormd::ur::dashboard::DashboardClient;
 use mmnormd::ur::rtde::client::DEFAULT_OUTPUTS;
-use mmnormd::ur::rtde::{RtdeClient, RtdeConfig, RtdeEvent, Value};
+use mmnormd::ur::rtde::{RtdeClient, RtdeConfig, RtdeEvent, RtdeType, Value, fields};
 use mmnormd::ur::sim::{Faults, UrSim, UrSimConfig};
 
 fn resolve(host: &str, port: u16) -> Result<SocketAddr> {
@@ -111,7 +111,20 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
     let file =
         std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut csv = std::io::BufWriter::new(file);
-    let mut header_written = false;
+    // The header comes from the controller's field table, so even a log that received nothing
+    // says what it would have held.
+    let mut cols = vec!["host_time_s".to_string(), "segment".to_string()];
+    for name in &names {
+        let width = fields::output_type(name).map_or(1, RtdeType::scalars);
+        if width == 1 {
+            cols.push(name.clone());
+        } else {
+            cols.extend((0..width).map(|i| format!("{name}_{i}")));
+        }
+    }
+    writeln!(csv, "{}", cols.join(","))
+        .and_then(|()| csv.flush())
+        .with_context(|| format!("writing {}", a.out.display()))?;
     let (mut packets, mut gaps, mut missing) = (0u64, 0u64, 0u64);
     let mut last: Option<(u64, f64)> = None;
     let period = 1.0 / a.frequency;
@@ -125,19 +138,6 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
         };
         match event {
             RtdeEvent::Sample(s) => {
-                if !header_written {
-                    let mut cols = vec!["host_time_s".to_string(), "segment".to_string()];
-                    for (name, v) in names.iter().zip(&s.values) {
-                        let width = v.scalars().len();
-                        if width == 1 {
-                            cols.push(name.clone());
-                        } else {
-                            cols.extend((0..width).map(|i| format!("{name}_{i}")));
-                        }
-                    }
-                    writeln!(csv, "{}", cols.join(","))?;
-                    header_written = true;
-                }
                 let mut row = vec![format!("{:.6}", s.host_s), s.segment.to_string()];
                 row.extend(
                     s.values
@@ -158,7 +158,10 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
                 gaps += 1;
                 tracing::warn!("RTDE gap: {reason}");
             }
-            RtdeEvent::Failed(e) => bail!(e),
+            RtdeEvent::Failed(e) => {
+                csv.flush().ok();
+                bail!(e)
+            }
             RtdeEvent::Connected {
                 protocol, version, ..
             } => tracing::info!(
@@ -181,6 +184,15 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
     progress.finish();
     csv.flush()
         .with_context(|| format!("writing {}", a.out.display()))?;
+    if packets == 0 {
+        bail!(
+            "no RTDE package from {}:{} in {} s ({gaps} sessions ended without data); {} holds the header only",
+            a.host,
+            a.rtde_port,
+            a.seconds,
+            a.out.display()
+        );
+    }
     println!(
         "{packets} packages in {:.1} s ({:.1} Hz), {gaps} gaps, {missing} missing by controller timestamp; wrote {}",
         a.seconds,
@@ -192,13 +204,17 @@ pub fn log(a: LogArgs, quiet: bool) -> Result<()> {
 
 #[derive(clap::Args)]
 pub struct SimRobotArgs {
-    /// The RTDE server's TCP port on 127.0.0.1.
+    /// The loopback address every port binds (127.0.0.1 … 127.255.255.254): a second
+    /// simulator, or one beside a client with fixed ports such as ur_rtde, takes its own.
+    #[arg(long, default_value = "127.0.0.1")]
+    address: std::net::Ipv4Addr,
+    /// The RTDE server's TCP port.
     #[arg(long, default_value_t = 30004)]
     rtde_port: u16,
-    /// The Dashboard server's TCP port on 127.0.0.1.
+    /// The Dashboard server's TCP port.
     #[arg(long, default_value_t = 29999)]
     dashboard_port: u16,
-    /// The URScript (secondary interface) TCP port on 127.0.0.1.
+    /// The URScript (secondary interface) TCP port.
     #[arg(long, default_value_t = 30002)]
     script_port: u16,
     /// Start in Local mode: Dashboard actions are refused and scripts ignored.
@@ -245,7 +261,7 @@ fn move_and_seconds(flag: &str, text: Option<&str>) -> Result<Option<(u64, f64)>
 pub fn sim_robot(a: SimRobotArgs) -> Result<()> {
     let protective_stop = move_and_seconds("--protective-stop", a.protective_stop.as_deref())?;
     let input_loss = move_and_seconds("--input-loss", a.input_loss.as_deref())?;
-    let at = |port| SocketAddr::from(([127, 0, 0, 1], port));
+    let at = |port| SocketAddr::from((a.address, port));
     let config = UrSimConfig {
         rtde: at(a.rtde_port),
         dashboard: at(a.dashboard_port),

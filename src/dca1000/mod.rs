@@ -31,4 +31,4 @@ pub use board::{
 pub use command::{AsyncEvent, Command, CommandCode, FpgaConfig, PacketConfig, Response};
 pub use packet::DataPacket;
 pub use reassembler::{Frame, Reassembler, StreamStats};
-pub use samples::{FrameLayout, IqOrder};
+pub use samples::{FrameLayout, IqOrder, Lanes};

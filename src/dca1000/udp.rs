@@ -77,6 +77,19 @@ impl Default for Dca1000Config {
 }
 
 impl Dca1000Config {
+    /// The frame layout `profile` produces on this board: its lanes from `fpga.lvds_mode`, its
+    /// I/Q order from `iq_order`, checked against the profile's.
+    pub fn layout(
+        &self,
+        profile: &crate::radar::RadarProfile,
+    ) -> Result<super::samples::FrameLayout, super::samples::LayoutError> {
+        super::samples::FrameLayout::from_profile(
+            profile,
+            self.iq_order,
+            super::samples::Lanes::from_lvds_mode(self.fpga.lvds_mode)?,
+        )
+    }
+
     /// Checks every field; the error names the field and its value.
     pub fn validate(&self) -> Result<(), String> {
         if self.config_port == 0 {

@@ -10,7 +10,8 @@
 //! - [`simlab`]: the simulated lab in-process; [`scene_frames`]: its radar, rendering each frame
 //!   from where the simulated arm carries it; [`simchain`]: the simulated radar chain alone.
 //! - [`calibrate`]: `align.sync_offset_s` and `tcp_from_radar` from a scan of a point reflector.
-//! - [`raw`]: the radar-only capture of docs/protocols.md B4 (`mmnormd capture raw`).
+//! - [`raw`]: the radar-only capture of docs/protocols.md B4 (`mmnormd capture raw`);
+//!   [`decode`]: its `adc_data.bin` as samples and a range profile (`mmnormd capture decode`).
 //!
 //! Each device's protocol lives in its own module ([`crate::radar`], [`crate::dca1000`],
 //! [`crate::ur`]); this module only sequences them. It never opens a control port
@@ -18,6 +19,7 @@
 
 pub mod calibrate;
 pub mod config;
+pub mod decode;
 pub mod devices;
 pub mod job;
 pub mod raw;

@@ -74,7 +74,10 @@ pub fn capture_raw(
     radar: Option<&mut dyn RadarControl>,
     job: &RawCapture<'_>,
 ) -> Result<RawReport, RawError> {
-    let layout = FrameLayout::from_profile(job.profile, job.lab.dca1000.iq_order)
+    let layout = job
+        .lab
+        .dca1000
+        .layout(job.profile)
         .map_err(|e| RawError::Setup(e.to_string()))?;
     std::fs::create_dir_all(job.out_dir).map_err(|source| RawError::Io {
         path: job.out_dir.to_path_buf(),

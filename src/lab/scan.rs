@@ -117,7 +117,7 @@ impl ScanSetup {
         spec: ScanSpec,
         profile: RadarProfile,
     ) -> Result<Self, ScanError> {
-        let layout = FrameLayout::from_profile(&profile, lab.dca1000.iq_order)?;
+        let layout = lab.dca1000.layout(&profile)?;
         if layout.chirps_per_frame != 1 {
             return Err(ScanError::Setup(format!(
                 "radar.profile {} has {} chirps per frame; a scan takes one chirp per frame (one TX position each)",

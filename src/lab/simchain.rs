@@ -8,7 +8,6 @@ use std::sync::Arc;
 
 use super::config::LabConfig;
 use crate::capture::read_capture_dir;
-use crate::dca1000::samples::FrameLayout;
 use crate::dca1000::sim::{
     AdcStream, CoreConfig, DcaSimulator, FrameSource, SimAddresses, SimStats, StreamPlan,
 };
@@ -48,7 +47,9 @@ pub fn load_source(
             ));
         }
     };
-    let layout = FrameLayout::from_profile(profile, lab.dca1000.iq_order)
+    let layout = lab
+        .dca1000
+        .layout(profile)
         .map_err(|e| SimChainError::Source(e.to_string()))?;
     AdcStream::from_capture(&capture, &layout, lab.sim.full_scale)
         .map_err(|e| SimChainError::Source(format!("the capture does not fit the profile: {e}")))

@@ -41,12 +41,10 @@ const PASS_THROUGH_COMMANDS: &[&str] = &[
     "sensorStart",
     "lowPower",
     "lvdsStreamCfg",
-    "adcbufCfg",
     "hsiClkCfg",
     "calibConfig",
     "calibMonCfg",
     "ldoBypass",
-    "testFmkCfg",
     "setProfileCfg",
     "version",
     "CQRxSatMonitor",
@@ -92,6 +90,9 @@ pub struct RadarProfile {
     pub tx_mask: u8,
     /// ADC bits (12, 14 or 16).
     pub adc_bits: u8,
+    /// The I/Q order the script sets, where it sets one: (command, field, true for Q first),
+    /// from `adcbufCfg` SampleSwap or `testFmkCfg` iqSwapSel, the last one given.
+    pub sample_swap: Option<(&'static str, &'static str, bool)>,
     /// The script lines that were accepted, comments removed, in order.
     pub script: Vec<String>,
 }
@@ -198,6 +199,7 @@ struct Partial {
     profile: Option<ProfileFields>,
     chirps: Vec<(u32, u32, u8)>,
     frame: Option<FrameFields>,
+    sample_swap: Option<(&'static str, &'static str, bool)>,
 }
 
 struct ProfileFields {
@@ -458,6 +460,22 @@ impl Partial {
                     period_code,
                 });
             }
+            "adcbufCfg" => {
+                // SDK 2.x and studio_cli: subFrameIdx first (5 words); SDK 1.x: 4 words.
+                a.expect_count(&[4, 5])?;
+                let at = a.words.len() - 4;
+                a.int_in(at, "adcOutputFmt", 0, 0)?;
+                let swap = a.int_in(at + 1, "SampleSwap", 0, 1)? == 1;
+                a.int_in(at + 2, "ChanInterleave", 0, 1)?;
+                self.sample_swap = Some(("adcbufCfg", "SampleSwap", swap));
+            }
+            "testFmkCfg" => {
+                if a.words.len() < 2 {
+                    return Err(a.fail("needs at least adcFmt and iqSwapSel"));
+                }
+                let swap = a.int_in(1, "iqSwapSel", 0, 1)? == 1;
+                self.sample_swap = Some(("testFmkCfg", "iqSwapSel", swap));
+            }
             other if PASS_THROUGH_COMMANDS.contains(&other) => {}
             other => {
                 return Err(a.fail(format!(
@@ -586,6 +604,7 @@ impl Partial {
             rx_channels: (0..4u8).filter(|k| rx_mask & (1 << k) != 0).collect(),
             tx_mask,
             adc_bits,
+            sample_swap: self.sample_swap,
             script,
         })
     }

@@ -7,9 +7,15 @@
 //! fieldbus), start. A field the controller refuses (`NOT_FOUND`, `IN_USE`) is an error that
 //! names it, and the client stops: retrying cannot help.
 //!
-//! No package for `stall_periods` periods is a stall: the client marks a gap, drops the
-//! connection, and reconnects with a doubling backoff, re-running the whole setup. Every gap
-//! starts a new segment number; consumers must never interpolate poses across segments.
+//! No package for `stall_periods` periods is a stall (the first package after START gets
+//! `first_package_timeout` instead: a controller may take tens of milliseconds to send it): the
+//! client marks a gap, drops the connection, and reconnects, re-running the whole setup. Every
+//! gap starts a new segment number; consumers must never interpolate poses across segments.
+//!
+//! Every connection after the first waits the backoff first, which then doubles, up to
+//! `backoff_max`. It starts at `backoff_initial` and returns there only after a session
+//! streamed for `healthy_after`. A controller that accepts and then fails at once is therefore
+//! retried at 0.1, 0.2, 0.4 … 5 s, never in a storm.
 
 use std::io::{Read as _, Write as _};
 use std::net::{SocketAddr, TcpStream};
@@ -22,7 +28,7 @@ use std::time::{Duration, Instant};
 use crate::netio::{is_would_block, write_all_within};
 
 use super::codec::{
-    ClientMessage, CodecError, FieldType, PacketReader, Recipe, RobotMessage, Value,
+    ClientMessage, CodecError, FieldType, PacketReader, Recipe, RobotMessage, Setup, Value,
 };
 
 /// The output fields mmnormd records (C4).
@@ -54,8 +60,12 @@ pub struct RtdeConfig {
     pub connect_timeout: Duration,
     /// Packages missed before a stall is declared.
     pub stall_periods: f64,
+    /// How long the first package after START may take.
+    pub first_package_timeout: Duration,
     pub backoff_initial: Duration,
     pub backoff_max: Duration,
+    /// A session that streamed this long resets the backoff.
+    pub healthy_after: Duration,
 }
 
 impl RtdeConfig {
@@ -68,8 +78,10 @@ impl RtdeConfig {
             inputs: DEFAULT_INPUTS.iter().map(|s| s.to_string()).collect(),
             connect_timeout: Duration::from_secs(2),
             stall_periods: 3.0,
+            first_package_timeout: Duration::from_secs(1),
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
+            healthy_after: Duration::from_secs(5),
         }
     }
 }
@@ -82,7 +94,7 @@ pub enum RtdeError {
     #[error("RTDE field `{field}` is not known to this controller (NOT_FOUND)")]
     NotFound { field: String },
     #[error(
-        "RTDE field `{field}` is in use by another client or a fieldbus (IN_USE); use registers 24–47"
+        "RTDE field `{field}` is in use by another RTDE client or a fieldbus (IN_USE): stop the other client, or, if a fieldbus holds registers 0–23, use 24–47"
     )]
     InUse { field: String },
     #[error("RTDE: the controller refused {what}")]
@@ -286,17 +298,34 @@ impl Session {
     }
 }
 
+/// The recipe a setup reply grants. The reply must be typed as the request (`O` for
+/// outputs, `I` for inputs), as a controller's is.
 fn recipe_from(
     names: &[String],
     reply: RobotMessage,
+    expected: Setup,
     what: &'static str,
 ) -> Result<Recipe, RtdeError> {
-    let RobotMessage::SetupReply { recipe_id, types } = reply else {
+    let RobotMessage::SetupReply {
+        setup,
+        recipe_id,
+        types,
+    } = reply
+    else {
         return Err(RtdeError::Unexpected {
             what,
             reply: format!("{reply:?}"),
         });
     };
+    if setup != expected {
+        return Err(RtdeError::Unexpected {
+            what,
+            reply: format!(
+                "a setup reply of packet type '{}'",
+                char::from(setup.packet_type())
+            ),
+        });
+    }
     if types.len() != names.len() {
         return Err(RtdeError::Unexpected {
             what,
@@ -371,6 +400,7 @@ fn setup(config: &RtdeConfig) -> Result<Session, RtdeError> {
     s.output = recipe_from(
         &config.outputs,
         s.reply("output setup", timeout)?,
+        Setup::Outputs,
         "output setup",
     )?;
     if !config.inputs.is_empty() {
@@ -380,6 +410,7 @@ fn setup(config: &RtdeConfig) -> Result<Session, RtdeError> {
         s.input = Some(recipe_from(
             &config.inputs,
             s.reply("input setup", timeout)?,
+            Setup::Inputs,
             "input setup",
         )?);
     }
@@ -403,20 +434,23 @@ fn run(
     let timestamp_at = config.outputs.iter().position(|n| n == "timestamp");
     let mut segment = 0u64;
     let mut backoff = config.backoff_initial;
+    let mut first_attempt = true;
     while !stop.load(Ordering::Relaxed) {
+        if !first_attempt {
+            if !sleep_unless_stopped(backoff, &stop) {
+                return;
+            }
+            backoff = (backoff * 2).min(config.backoff_max);
+        }
+        first_attempt = false;
         let mut session = match setup(&config) {
             Ok(s) => s,
             Err(e @ (RtdeError::NotFound { .. } | RtdeError::InUse { .. })) => {
                 events.send(RtdeEvent::Failed(e)).ok();
                 return;
             }
-            Err(_) => {
-                std::thread::sleep(backoff);
-                backoff = (backoff * 2).min(config.backoff_max);
-                continue;
-            }
+            Err(_) => continue,
         };
-        backoff = config.backoff_initial;
         segment += 1;
         events
             .send(RtdeEvent::Connected {
@@ -426,7 +460,7 @@ fn run(
                 at_host_s: host_s(),
             })
             .ok();
-        let reason = read_loop(
+        let ended = read_loop(
             &mut session,
             &config,
             stall,
@@ -437,14 +471,35 @@ fn run(
             &stop,
             epoch,
         );
+        if ended.streamed >= config.healthy_after {
+            backoff = config.backoff_initial;
+        }
         events
             .send(RtdeEvent::Gap {
                 segment,
-                reason,
+                reason: ended.reason,
                 at_host_s: host_s(),
             })
             .ok();
     }
+}
+
+/// Sleeps `d` in short steps; false when `stop` was set meanwhile.
+fn sleep_unless_stopped(d: Duration, stop: &AtomicBool) -> bool {
+    let until = Instant::now() + d;
+    while Instant::now() < until {
+        if stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        std::thread::sleep((until - Instant::now()).min(Duration::from_millis(20)));
+    }
+    !stop.load(Ordering::Relaxed)
+}
+
+/// How a session ended: why, and for how long data flowed (first to last package).
+struct Ended {
+    reason: String,
+    streamed: Duration,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -458,9 +513,47 @@ fn read_loop(
     inputs: &Receiver<Request>,
     stop: &AtomicBool,
     epoch: Instant,
+) -> Ended {
+    let mut first_package: Option<Instant> = None;
+    let mut last_package = Instant::now();
+    let reason = read_packages(
+        s,
+        config,
+        stall,
+        segment,
+        timestamp_at,
+        events,
+        inputs,
+        stop,
+        epoch,
+        &mut first_package,
+        &mut last_package,
+    );
+    Ended {
+        reason,
+        streamed: first_package.map_or(Duration::ZERO, |t| {
+            last_package.saturating_duration_since(t)
+        }),
+    }
+}
+
+/// The body of [`read_loop`]: reads until the session ends and says why; `first_package` and
+/// `last_package` record when data came.
+#[allow(clippy::too_many_arguments)]
+fn read_packages(
+    s: &mut Session,
+    config: &RtdeConfig,
+    stall: Duration,
+    segment: u64,
+    timestamp_at: Option<usize>,
+    events: &Sender<RtdeEvent>,
+    inputs: &Receiver<Request>,
+    stop: &AtomicBool,
+    epoch: Instant,
+    first_package: &mut Option<Instant>,
+    last_package: &mut Instant,
 ) -> String {
     let mut buf = [0u8; 16384];
-    let mut last_package = Instant::now();
     let mut paused = false;
     let poll = (stall / 12).clamp(Duration::from_micros(200), Duration::from_millis(2));
     if s.stream.set_nonblocking(true).is_err() {
@@ -488,7 +581,7 @@ fn read_loop(
                 }
                 Request::Start => {
                     paused = false;
-                    last_package = Instant::now();
+                    *last_package = Instant::now();
                     Some(ClientMessage::Start)
                 }
             };
@@ -518,7 +611,8 @@ fn read_loop(
                             let Ok(values) = s.output.decode_fields(&fields) else {
                                 return "a data package did not match the recipe".into();
                             };
-                            last_package = received;
+                            *last_package = received;
+                            first_package.get_or_insert(received);
                             let controller_s = timestamp_at.and_then(|i| match values.get(i) {
                                 Some(Value::Double(t)) => Some(*t),
                                 _ => None,
@@ -543,7 +637,17 @@ fn read_loop(
             Err(e) if is_would_block(&e) => std::thread::sleep(poll),
             Err(e) => return format!("read failed: {e}"),
         }
-        if !paused && last_package.elapsed() > stall {
+        if paused {
+            continue;
+        }
+        if first_package.is_none() {
+            if last_package.elapsed() > config.first_package_timeout {
+                return format!(
+                    "no first package within {} ms of START",
+                    config.first_package_timeout.as_millis()
+                );
+            }
+        } else if last_package.elapsed() > stall {
             return format!(
                 "stall: no package for {:.1} ms ({} periods at {} Hz)",
                 last_package.elapsed().as_secs_f64() * 1e3,

@@ -103,6 +103,15 @@ impl RtdeType {
             .map_or("", |(_, n, _)| n)
     }
 
+    /// Scalars a value holds: 3 or 6 for the vectors, else 1.
+    pub fn scalars(self) -> usize {
+        match self {
+            RtdeType::Vector3d => 3,
+            RtdeType::Vector6d | RtdeType::Vector6Int32 | RtdeType::Vector6Uint32 => 6,
+            _ => 1,
+        }
+    }
+
     /// Bytes on the wire.
     pub fn size(self) -> usize {
         Self::NAMES
@@ -315,6 +324,25 @@ pub enum ClientMessage {
     },
 }
 
+/// Which recipe a setup request or its reply concerns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Setup {
+    /// `O`, CONTROL_PACKAGE_SETUP_OUTPUTS.
+    Outputs,
+    /// `I`, CONTROL_PACKAGE_SETUP_INPUTS.
+    Inputs,
+}
+
+impl Setup {
+    /// The packet type.
+    pub fn packet_type(self) -> u8 {
+        match self {
+            Setup::Outputs => CONTROL_PACKAGE_SETUP_OUTPUTS,
+            Setup::Inputs => CONTROL_PACKAGE_SETUP_INPUTS,
+        }
+    }
+}
+
 /// Robot-to-client messages.
 #[derive(Debug, Clone, PartialEq)]
 pub enum RobotMessage {
@@ -330,8 +358,10 @@ pub enum RobotMessage {
         message: String,
         source: String,
     },
-    /// A setup reply: the recipe id (0 under v1) and each field's type or refusal.
+    /// A setup reply, typed as the request it answers (`O` or `I`): the recipe id (0 for
+    /// outputs under v1) and each field's type or refusal.
     SetupReply {
+        setup: Setup,
         recipe_id: u8,
         types: Vec<FieldType>,
     },
@@ -399,12 +429,13 @@ fn data_frame(recipe_id: Option<u8>, fields: &[u8]) -> Result<Vec<u8>, CodecErro
     frame(DATA_PACKAGE, &p)
 }
 
+/// The names of a comma-separated list, as the controller splits it: empty names (a trailing
+/// comma, as ur_rtde sends, or `a,,b`) are dropped.
 fn split_names(s: &str) -> Vec<String> {
-    if s.is_empty() {
-        Vec::new()
-    } else {
-        s.split(',').map(str::to_string).collect()
-    }
+    s.split(',')
+        .filter(|n| !n.is_empty())
+        .map(str::to_string)
+        .collect()
 }
 
 impl ClientMessage {
@@ -528,7 +559,11 @@ impl RobotMessage {
                 }
                 frame(TEXT_MESSAGE, &p)
             }
-            RobotMessage::SetupReply { recipe_id, types } => {
+            RobotMessage::SetupReply {
+                setup,
+                recipe_id,
+                types,
+            } => {
                 let names: Vec<&str> = types
                     .iter()
                     .map(|t| match t {
@@ -538,11 +573,11 @@ impl RobotMessage {
                     })
                     .collect();
                 let mut p = Vec::new();
-                if protocol >= 2 {
+                if protocol >= 2 || *setup == Setup::Inputs {
                     p.push(*recipe_id);
                 }
                 p.extend_from_slice(names.join(",").as_bytes());
-                frame(CONTROL_PACKAGE_SETUP_OUTPUTS, &p)
+                frame(setup.packet_type(), &p)
             }
             RobotMessage::StartAccepted(a) => frame(CONTROL_PACKAGE_START, &[u8::from(*a)]),
             RobotMessage::PauseAccepted(a) => frame(CONTROL_PACKAGE_PAUSE, &[u8::from(*a)]),
@@ -614,7 +649,16 @@ impl RobotMessage {
                             .ok_or(CodecError::UnknownTypeName(n)),
                     })
                     .collect::<Result<_, _>>()?;
-                RobotMessage::SetupReply { recipe_id, types }
+                let setup = if ty == CONTROL_PACKAGE_SETUP_INPUTS {
+                    Setup::Inputs
+                } else {
+                    Setup::Outputs
+                };
+                RobotMessage::SetupReply {
+                    setup,
+                    recipe_id,
+                    types,
+                }
             }
             CONTROL_PACKAGE_START => {
                 need(ty, "accepted flag", b, 1)?;
@@ -730,12 +774,19 @@ mod tests {
                     },
                 },
                 RobotMessage::SetupReply {
+                    setup: Setup::Outputs,
                     recipe_id: if protocol == 2 { 1 } else { 0 },
                     types: vec![
                         FieldType::Type(RtdeType::Double),
                         FieldType::NotFound,
                         FieldType::Type(RtdeType::Vector6d),
                     ],
+                },
+                // An input reply carries its recipe id under both versions.
+                RobotMessage::SetupReply {
+                    setup: Setup::Inputs,
+                    recipe_id: 2,
+                    types: vec![FieldType::Type(RtdeType::Int32), FieldType::InUse],
                 },
                 RobotMessage::StartAccepted(true),
                 RobotMessage::PauseAccepted(false),
@@ -826,16 +877,49 @@ mod tests {
         assert_eq!(r.next_packet(), Err(CodecError::BadSize { size: 1 }));
     }
 
+    /// ur_rtde ends its names with a comma; the controller ignores the empty name.
+    #[test]
+    fn empty_names_are_dropped_as_the_controller_does() {
+        let m = ClientMessage::decode(
+            b'O',
+            b"\x40\x7f\x40\x00\x00\x00\x00\x00timestamp,actual_q,",
+            2,
+        )
+        .unwrap();
+        assert_eq!(
+            m,
+            ClientMessage::SetupOutputs {
+                frequency_hz: 500.0,
+                names: vec!["timestamp".into(), "actual_q".into()],
+            }
+        );
+        let m = ClientMessage::decode(b'I', b"input_int_register_24,,", 2).unwrap();
+        assert_eq!(
+            m,
+            ClientMessage::SetupInputs {
+                names: vec!["input_int_register_24".into()],
+            }
+        );
+    }
+
     #[test]
     fn in_use_and_not_found_are_decoded_as_refusals() {
         let m = RobotMessage::decode(b'I', b"\x00INT32,IN_USE", 2).unwrap();
         assert_eq!(
             m,
             RobotMessage::SetupReply {
+                setup: Setup::Inputs,
                 recipe_id: 0,
                 types: vec![FieldType::Type(RtdeType::Int32), FieldType::InUse]
             }
         );
+        // The reply's packet type follows the request it answers.
+        let input_reply = RobotMessage::SetupReply {
+            setup: Setup::Inputs,
+            recipe_id: 1,
+            types: vec![FieldType::Type(RtdeType::Int32)],
+        };
+        assert_eq!(input_reply.encode(2).unwrap()[2], b'I');
         assert_eq!(
             RobotMessage::decode(b'O', b"\x01FLOAT", 2),
             Err(CodecError::UnknownTypeName("FLOAT".into()))

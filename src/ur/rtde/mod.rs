@@ -3,6 +3,7 @@
 
 pub mod client;
 pub mod codec;
+pub mod fields;
 
 pub use client::{RtdeClient, RtdeConfig, RtdeError, RtdeEvent, Sample};
 pub use codec::{ClientMessage, CodecError, PacketReader, Recipe, RobotMessage, RtdeType, Value};

@@ -7,7 +7,8 @@
 //!
 //! Seeded faults ([`Faults`]): jitter on RTDE send times, a stall (socket open, no data),
 //! kill and restart of the RTDE server, a protective stop a given time into a given move, a
-//! controller clock offset and drift, and fieldbus-held input registers (`IN_USE`).
+//! controller clock offset and drift, fieldbus-held input registers (`IN_USE`), a late first
+//! package, and a close right after START.
 
 mod dashboard_server;
 pub mod rtde_server;
@@ -35,6 +36,12 @@ pub struct Faults {
     pub fieldbus_holds_registers: bool,
     /// Refuse protocol version 2, as a controller older than 3.2 would.
     pub protocol_v1_only: bool,
+    /// The first data package after START comes this much late, seconds (Nagle on the
+    /// controller's side is enough for 40 ms).
+    pub first_package_delay_s: f64,
+    /// Close the connection right after accepting START, as a controller that fails just
+    /// after setup would.
+    pub close_after_start: bool,
 }
 
 /// The TCP pose at an instant, where the arm's motion decides it.

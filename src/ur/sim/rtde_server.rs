@@ -5,7 +5,7 @@
 
 use std::io::Read as _;
 use std::net::TcpStream;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -14,8 +14,9 @@ use super::state::ArmState;
 use crate::netio::{is_would_block, sleep_until, write_all_within};
 use crate::signal::Rng;
 use crate::ur::rtde::codec::{
-    ClientMessage, FieldType, PacketReader, Recipe, RobotMessage, RtdeType, Value,
+    ClientMessage, FieldType, PacketReader, Recipe, RobotMessage, RtdeType, Setup, Value,
 };
+use crate::ur::rtde::fields;
 
 /// A client that reads nothing for this long is dropped, as the controller does.
 const CLIENT_READ_LIMIT: Duration = Duration::from_secs(10);
@@ -25,34 +26,23 @@ pub const URCONTROL_VERSION: (u32, u32, u32, u32) = (5, 11, 1, 108_318);
 /// e-Series maximum output rate.
 pub const MAX_FREQUENCY_HZ: f64 = 500.0;
 
-/// The type of an output field, if the simulator knows it.
-pub fn output_type(name: &str) -> Option<RtdeType> {
-    Some(match name {
-        "timestamp" | "speed_scaling" | "target_speed_fraction" => RtdeType::Double,
-        "actual_TCP_pose" | "target_TCP_pose" | "actual_TCP_speed" | "target_TCP_speed"
-        | "actual_q" | "target_q" | "actual_qd" | "target_qd" | "tcp_offset" => RtdeType::Vector6d,
-        "robot_mode" | "safety_mode" | "safety_status" => RtdeType::Int32,
-        "runtime_state" | "robot_status_bits" | "safety_status_bits" => RtdeType::Uint32,
-        "actual_digital_output_bits" => RtdeType::Uint64,
-        n => {
-            if let Some(i) = n.strip_prefix("output_int_register_") {
-                (i.parse::<usize>().ok()? < 48).then_some(RtdeType::Int32)?
-            } else if let Some(i) = n.strip_prefix("output_double_register_") {
-                (i.parse::<usize>().ok()? < 48).then_some(RtdeType::Double)?
-            } else {
-                return None;
-            }
-        }
-    })
-}
-
-fn output_value(name: &str, s: &ArmState, controller_s: f64) -> Value {
+/// The value of the output `name` (of type `ty`, from [`fields::output_type`]) at
+/// `controller_s`. What the arm's state models comes from it; the rest holds a plausible
+/// constant of an idle, healthy e-Series arm (48 V supply, joints at 32 °C, no payload, no
+/// I/O), so a client that records every field sees sensible numbers.
+fn output_value(name: &str, ty: RtdeType, s: &ArmState, controller_s: f64) -> Value {
     let safety_bits = match s.safety.code() {
         1 => 1,
         3 => 1 << 2,
         5 => 1 << 5,
         6 | 7 => 1 << 7,
         _ => 0,
+    };
+    // UR joint and tool modes: 253 running, 255 idle, 239 powered off.
+    let joint_mode = match s.robot_mode.code() {
+        7 => 253,
+        5 => 255,
+        _ => 239,
     };
     match name {
         "timestamp" => Value::Double(controller_s),
@@ -61,7 +51,6 @@ fn output_value(name: &str, s: &ArmState, controller_s: f64) -> Value {
         "target_TCP_pose" => Value::Vector6d(s.target_pose),
         "actual_TCP_speed" | "target_TCP_speed" => Value::Vector6d(s.speed),
         "actual_q" | "target_q" => Value::Vector6d(s.joints),
-        "actual_qd" | "target_qd" | "tcp_offset" => Value::Vector6d([0.0; 6]),
         "robot_mode" => Value::Int32(s.robot_mode.code()),
         "safety_mode" | "safety_status" => Value::Int32(s.safety.code()),
         "runtime_state" => Value::Uint32(s.runtime_state()),
@@ -69,15 +58,68 @@ fn output_value(name: &str, s: &ArmState, controller_s: f64) -> Value {
             u32::from(s.robot_mode.code() >= 4) | (u32::from(s.motion.is_some()) << 1),
         ),
         "safety_status_bits" => Value::Uint32(safety_bits),
-        "actual_digital_output_bits" => Value::Uint64(0),
-        n => {
-            let index = |p: &str| n.strip_prefix(p).and_then(|i| i.parse::<usize>().ok());
+        "joint_mode" => Value::Vector6Int32([joint_mode; 6]),
+        "tool_mode" => Value::Uint32(joint_mode as u32),
+        "control_step" => Value::Uint64((controller_s * MAX_FREQUENCY_HZ).round().max(0.0) as u64),
+        "actual_main_voltage" | "actual_robot_voltage" => Value::Double(48.0),
+        "actual_robot_current" => Value::Double(0.6),
+        "actual_joint_voltage" => Value::Vector6d([47.8; 6]),
+        "joint_temperatures" => Value::Vector6d([32.0; 6]),
+        "tool_temperature" => Value::Double(30.0),
+        "target_gravity" => Value::Vector3d([0.0, 0.0, -9.82]),
+        "actual_tool_accelerometer" => Value::Vector3d([0.0, 0.0, -9.82]),
+        _ => {
+            let index = |p: &str| name.strip_prefix(p).and_then(|i| i.parse::<usize>().ok());
             if let Some(i) = index("output_int_register_") {
                 Value::Int32(s.output_int_registers.get(i).copied().unwrap_or(0))
+            } else if let Some(i) = index("input_int_register_") {
+                Value::Int32(s.input_int_registers.get(i).copied().unwrap_or(0))
             } else {
-                Value::Double(0.0)
+                zero(ty)
             }
         }
+    }
+}
+
+/// The zero of `ty`.
+fn zero(ty: RtdeType) -> Value {
+    match ty {
+        RtdeType::Bool => Value::Bool(false),
+        RtdeType::Uint8 => Value::Uint8(0),
+        RtdeType::Uint32 => Value::Uint32(0),
+        RtdeType::Uint64 => Value::Uint64(0),
+        RtdeType::Int32 => Value::Int32(0),
+        RtdeType::Double => Value::Double(0.0),
+        RtdeType::Vector3d => Value::Vector3d([0.0; 3]),
+        RtdeType::Vector6d => Value::Vector6d([0.0; 6]),
+        RtdeType::Vector6Int32 => Value::Vector6Int32([0; 6]),
+        RtdeType::Vector6Uint32 => Value::Vector6Uint32([0; 6]),
+    }
+}
+
+/// Connection numbers, so that input fields know their holder.
+static NEXT_CLIENT: AtomicU64 = AtomicU64::new(1);
+
+/// One connection: its number, and the input fields it holds, released when it ends however
+/// it ends.
+struct Client {
+    id: u64,
+    arm: Arc<Mutex<ArmState>>,
+}
+
+impl Client {
+    fn new(arm: Arc<Mutex<ArmState>>) -> Client {
+        Client {
+            id: NEXT_CLIENT.fetch_add(1, Ordering::Relaxed),
+            arm,
+        }
+    }
+}
+
+impl Drop for Client {
+    fn drop(&mut self) {
+        let mut arm = self.arm.lock().unwrap_or_else(|p| p.into_inner());
+        arm.input_owners.retain(|_, owner| *owner != self.id);
     }
 }
 
@@ -88,6 +130,7 @@ pub(crate) fn serve(
     faults: Arc<Mutex<Faults>>,
     stop: Arc<AtomicBool>,
 ) {
+    let client = Client::new(arm.clone());
     stream.set_nodelay(true).ok();
     // A modest send buffer, so a client that stops reading is noticed in seconds, not minutes.
     socket2::SockRef::from(&stream)
@@ -101,6 +144,7 @@ pub(crate) fn serve(
     let mut outputs: Option<(Recipe, f64)> = None;
     let mut inputs: Vec<Recipe> = Vec::new();
     let mut streaming = false;
+    let mut close_after_reply = false;
     let mut tick = 0u64;
     let mut first_tick_controller_s = 0.0;
     let mut rng = Rng::new(faults.lock().map(|f| f.seed).unwrap_or(0));
@@ -167,7 +211,9 @@ pub(crate) fn serve(
                 } => {
                     let types: Vec<FieldType> = names
                         .iter()
-                        .map(|n| output_type(n).map_or(FieldType::NotFound, FieldType::Type))
+                        .map(|n| {
+                            fields::output_type(n).map_or(FieldType::NotFound, FieldType::Type)
+                        })
                         .collect();
                     let all_known: Option<Vec<RtdeType>> = types
                         .iter()
@@ -195,6 +241,7 @@ pub(crate) fn serve(
                         ));
                     }
                     Some(RobotMessage::SetupReply {
+                        setup: Setup::Outputs,
                         recipe_id: 1,
                         types,
                     })
@@ -204,9 +251,18 @@ pub(crate) fn serve(
                         .lock()
                         .map(|f| f.fieldbus_holds_registers)
                         .unwrap_or(false);
-                    let types: Vec<FieldType> =
-                        names.iter().map(|n| input_type(n, fieldbus)).collect();
-                    let id = inputs.len() as u8 + 1;
+                    let Ok(mut arm) = arm.lock() else { return };
+                    let types: Vec<FieldType> = names
+                        .iter()
+                        .map(|n| match input_type(n, fieldbus) {
+                            FieldType::Type(_)
+                                if arm.input_owners.get(n).is_some_and(|&o| o != client.id) =>
+                            {
+                                FieldType::InUse
+                            }
+                            other => other,
+                        })
+                        .collect();
                     let known: Option<Vec<RtdeType>> = types
                         .iter()
                         .map(|t| match t {
@@ -214,36 +270,47 @@ pub(crate) fn serve(
                             _ => None,
                         })
                         .collect();
-                    if let Some(types) = known {
-                        inputs.push(Recipe {
-                            id,
-                            names: names.clone(),
-                            types,
-                        });
-                    }
-                    Some(RobotMessage::SetupReply {
-                        recipe_id: if types.iter().all(|t| matches!(t, FieldType::Type(_))) {
+                    // A refused recipe gets id 0 and holds nothing.
+                    let recipe_id = match known {
+                        Some(types) => {
+                            let id = inputs.len() as u8 + 1;
+                            for n in &names {
+                                arm.input_owners.insert(n.clone(), client.id);
+                            }
+                            inputs.push(Recipe {
+                                id,
+                                names: names.clone(),
+                                types,
+                            });
                             id
-                        } else {
-                            0
-                        },
+                        }
+                        None => 0,
+                    };
+                    Some(RobotMessage::SetupReply {
+                        setup: Setup::Inputs,
+                        recipe_id,
                         types,
                     })
                 }
                 ClientMessage::Start => {
                     let ok = outputs.is_some();
+                    let (delay_s, close) = faults
+                        .lock()
+                        .map(|f| (f.first_package_delay_s.max(0.0), f.close_after_start))
+                        .unwrap_or((0.0, false));
                     if ok && !streaming {
                         streaming = true;
                         tick = 0;
                         let a = arm.lock();
                         first_tick_controller_s = a
                             .map(|a| {
-                                let c = a.controller_s(a.host_s(Instant::now()));
+                                let c = a.controller_s(a.host_s(Instant::now())) + delay_s;
                                 let period = outputs.as_ref().map_or(0.002, |o| 1.0 / o.1);
                                 (c / period).ceil() * period
                             })
                             .unwrap_or(0.0);
                     }
+                    close_after_reply = ok && close;
                     Some(RobotMessage::StartAccepted(ok))
                 }
                 ClientMessage::Pause => {
@@ -264,6 +331,9 @@ pub(crate) fn serve(
                 && let Ok(bytes) = reply.encode(protocol)
                 && write_all_within(&mut stream, &bytes, CLIENT_READ_LIMIT).is_err()
             {
+                return;
+            }
+            if close_after_reply {
                 return;
             }
         }
@@ -297,7 +367,8 @@ pub(crate) fn serve(
                 recipe
                     .names
                     .iter()
-                    .map(|n| output_value(n, &a, controller_s))
+                    .zip(&recipe.types)
+                    .map(|(n, t)| output_value(n, *t, &a, controller_s))
                     .collect()
             }
             Err(_) => return,
@@ -326,27 +397,16 @@ fn controller_to_host(a: &ArmState, controller_s: f64) -> f64 {
     (controller_s - a.clock_offset_s) / (1.0 + a.clock_drift_ppm * 1e-6)
 }
 
+/// The controller's answer for the input `name`: its type, `NOT_FOUND`, or `IN_USE` for the
+/// integer and double registers 0–23 while a fieldbus holds them.
 fn input_type(name: &str, fieldbus_holds_low_registers: bool) -> FieldType {
-    let register = |prefix: &str| {
-        name.strip_prefix(prefix)
-            .and_then(|i| i.parse::<usize>().ok())
-    };
-    let (index, ty) = if let Some(i) = register("input_int_register_") {
-        (i, RtdeType::Int32)
-    } else if let Some(i) = register("input_double_register_") {
-        (i, RtdeType::Double)
-    } else {
-        return match name {
-            "speed_slider_mask" => FieldType::Type(RtdeType::Uint32),
-            "speed_slider_fraction" => FieldType::Type(RtdeType::Double),
-            _ => FieldType::NotFound,
-        };
-    };
-    if index >= 48 {
-        FieldType::NotFound
-    } else if index < 24 && fieldbus_holds_low_registers {
-        FieldType::InUse
-    } else {
-        FieldType::Type(ty)
+    match fields::input_field(name) {
+        None => FieldType::NotFound,
+        Some((RtdeType::Int32 | RtdeType::Double, Some(index)))
+            if index < 24 && fieldbus_holds_low_registers =>
+        {
+            FieldType::InUse
+        }
+        Some((ty, _)) => FieldType::Type(ty),
     }
 }

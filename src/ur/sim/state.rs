@@ -95,6 +95,9 @@ pub struct ArmState {
     pub moves_started: u64,
     pub output_int_registers: [i32; 48],
     pub input_int_registers: [i32; 48],
+    /// Input fields held by an RTDE client's input recipe, with the client's connection
+    /// number: another client asking for one gets `IN_USE` until the holder disconnects.
+    pub input_owners: std::collections::HashMap<String, u64>,
     /// Controller clock: offset (s) and drift (ppm) against the host's monotonic clock.
     pub clock_offset_s: f64,
     pub clock_drift_ppm: f64,
@@ -137,6 +140,7 @@ impl ArmState {
             moves_started: 0,
             output_int_registers: [0; 48],
             input_int_registers: [0; 48],
+            input_owners: std::collections::HashMap::new(),
             clock_offset_s: 0.0,
             clock_drift_ppm: 0.0,
             protective_stop: None,
