@@ -462,14 +462,16 @@ fn run(
             .ok();
         let ended = read_loop(
             &mut session,
-            &config,
-            stall,
-            segment,
-            timestamp_at,
-            &events,
-            &inputs,
-            &stop,
-            epoch,
+            ReadContext {
+                config: &config,
+                stall,
+                segment,
+                timestamp_at,
+                events: &events,
+                inputs: &inputs,
+                stop: &stop,
+                epoch,
+            },
         );
         if ended.streamed >= config.healthy_after {
             backoff = config.backoff_initial;
@@ -502,33 +504,24 @@ struct Ended {
     streamed: Duration,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn read_loop(
-    s: &mut Session,
-    config: &RtdeConfig,
+/// What the read loop of one session needs besides the session.
+#[derive(Clone, Copy)]
+struct ReadContext<'a> {
+    config: &'a RtdeConfig,
     stall: Duration,
     segment: u64,
     timestamp_at: Option<usize>,
-    events: &Sender<RtdeEvent>,
-    inputs: &Receiver<Request>,
-    stop: &AtomicBool,
+    events: &'a Sender<RtdeEvent>,
+    inputs: &'a Receiver<Request>,
+    stop: &'a AtomicBool,
     epoch: Instant,
-) -> Ended {
+}
+
+/// Reads one session until it ends: why, and for how long data flowed.
+fn read_loop(s: &mut Session, ctx: ReadContext<'_>) -> Ended {
     let mut first_package: Option<Instant> = None;
     let mut last_package = Instant::now();
-    let reason = read_packages(
-        s,
-        config,
-        stall,
-        segment,
-        timestamp_at,
-        events,
-        inputs,
-        stop,
-        epoch,
-        &mut first_package,
-        &mut last_package,
-    );
+    let reason = read_packages(s, ctx, &mut first_package, &mut last_package);
     Ended {
         reason,
         streamed: first_package.map_or(Duration::ZERO, |t| {
@@ -539,20 +532,22 @@ fn read_loop(
 
 /// The body of [`read_loop`]: reads until the session ends and says why; `first_package` and
 /// `last_package` record when data came.
-#[allow(clippy::too_many_arguments)]
 fn read_packages(
     s: &mut Session,
-    config: &RtdeConfig,
-    stall: Duration,
-    segment: u64,
-    timestamp_at: Option<usize>,
-    events: &Sender<RtdeEvent>,
-    inputs: &Receiver<Request>,
-    stop: &AtomicBool,
-    epoch: Instant,
+    ctx: ReadContext<'_>,
     first_package: &mut Option<Instant>,
     last_package: &mut Instant,
 ) -> String {
+    let ReadContext {
+        config,
+        stall,
+        segment,
+        timestamp_at,
+        events,
+        inputs,
+        stop,
+        epoch,
+    } = ctx;
     let mut buf = [0u8; 16384];
     let mut paused = false;
     let poll = (stall / 12).clamp(Duration::from_micros(200), Duration::from_millis(2));

@@ -142,24 +142,9 @@ const OUTPUT_REGISTERS: &[Registers] = &[
         range: 0..48,
         ty: Double,
     },
-    // The input registers can be read back as outputs.
-    Registers {
-        prefix: "input_bit_register_",
-        range: 64..128,
-        ty: Bool,
-    },
-    Registers {
-        prefix: "input_int_register_",
-        range: 0..48,
-        ty: Int32,
-    },
-    Registers {
-        prefix: "input_double_register_",
-        range: 0..48,
-        ty: Double,
-    },
 ];
 
+/// The input registers; they can be read back as outputs too.
 const INPUT_REGISTERS: &[Registers] = &[
     Registers {
         prefix: "input_bit_register_",
@@ -198,6 +183,7 @@ pub fn output_type(name: &str) -> Option<RtdeType> {
         .find(|(n, _)| *n == name)
         .map(|(_, t)| *t)
         .or_else(|| register(OUTPUT_REGISTERS, name).map(|(t, _)| t))
+        .or_else(|| register(INPUT_REGISTERS, name).map(|(t, _)| t))
 }
 
 /// The type of the input field `name` and, for a register, its index; None where the
@@ -212,7 +198,9 @@ pub fn input_field(name: &str) -> Option<(RtdeType, Option<usize>)> {
 
 /// Every output name, registers expanded (for tests and documentation).
 pub fn output_names() -> Vec<String> {
-    expand(OUTPUTS, OUTPUT_REGISTERS)
+    let mut names = expand(OUTPUTS, OUTPUT_REGISTERS);
+    names.extend(expand(&[], INPUT_REGISTERS));
+    names
 }
 
 /// Every input name, registers expanded.
