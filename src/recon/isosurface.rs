@@ -59,7 +59,7 @@
 //!   paper selects the minimum.
 //! - **Guards (not in the paper)** against levels the single-bounce simulation misplaces (a
 //!   rim's edge echoes, concave surfaces), each off with its setting:
-//!   - with several components, each antenna fits a gain ≥ 0 per component ([`fit_gains`],
+//!   - with several components, each antenna fits a gain ≥ 0 per component (`fit_gains`,
 //!     `component_gains`), so a level is judged by where its echo falls;
 //!   - the caller offers only candidates near each component's |S|-weighted level
 //!     (`level_band_resolutions`, `recon::pipeline`);
@@ -315,7 +315,7 @@ pub enum ComponentGains {
     /// The simulated chirps add as simulated (Eq. 11 as printed).
     Common,
     /// Each antenna fits a gain ≥ 0 per component to the measured magnitudes before the
-    /// comparison ([`fit_gains`]).
+    /// comparison (`fit_gains`).
     Fitted,
 }
 
@@ -574,7 +574,7 @@ impl CandidateSpectra {
 /// Runs the optimisation for `fields` (one per component, NaN outside it) with `candidates[n]`.
 ///
 /// With `priors` (one level per component, the |S|-weighted one), a component leaves the
-/// candidate nearest its prior only on evidence: [`significant_gain`] at
+/// candidate nearest its prior only on evidence: a [`paired_t`] of at least
 /// `opts.evidence_t`.
 pub fn optimise(
     capture: &Capture,
