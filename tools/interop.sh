@@ -3,7 +3,8 @@
 # ur_rtde's RTDEReceiveInterface and RTDEIOInterface against `mmnormd sim robot` (on its own
 # loopback address, 127.0.0.2, since ur_rtde's port is fixed at 30004), the Python `mcap`
 # package's indexed and stream readers over a recorded scan, and numpy over a capture directory
-# and `capture decode`'s output. Skips with a message only when PyPI cannot be reached.
+# and `capture decode`'s output. Skips with a message only when PyPI cannot be reached, or when
+# the machine has no python3 able to make a venv to install into.
 # Usage: tools/interop.sh [path/to/mmnormd]   (default: target/release/mmnormd)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,11 +19,19 @@ cleanup() {
 }
 trap cleanup EXIT
 
+if ! command -v python3 > /dev/null; then
+    echo "interop: SKIPPED: no python3 on this machine, so the PyPI clients cannot be installed"
+    exit 0
+fi
 if ! python3 -c "import urllib.request; urllib.request.urlopen('https://pypi.org/simple/ur-rtde/', timeout=15)" 2>/dev/null; then
     echo "interop: SKIPPED: PyPI (https://pypi.org) cannot be reached from this machine"
     exit 0
 fi
-python3 -m venv "$WORK/venv"
+if ! python3 -m venv "$WORK/venv" > "$WORK/venv.log" 2>&1; then
+    cat "$WORK/venv.log"
+    echo "interop: SKIPPED: python3 cannot create a virtual environment here (Debian: python3-venv)"
+    exit 0
+fi
 "$WORK/venv/bin/pip" install --quiet --disable-pip-version-check "${PINS[@]}"
 PY="$WORK/venv/bin/python"
 echo "interop: ${PINS[*]} installed"
