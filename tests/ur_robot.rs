@@ -43,6 +43,22 @@ fn sim(config: UrSimConfig, faults: Faults) -> UrSim {
     UrSim::spawn(&config, faults).unwrap()
 }
 
+/// The default arm with `faults`.
+fn sim_with(faults: Faults) -> UrSim {
+    sim(UrSimConfig::default(), faults)
+}
+
+/// Runs `mmnormd robot log` for one second against `sim`, writing `csv`.
+fn robot_log(sim: &UrSim, csv: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
+        .args(["-q", "robot", "log", "--host", "127.0.0.1", "--rtde-port"])
+        .arg(sim.rtde_addr().port().to_string())
+        .args(["--seconds", "1", "--out"])
+        .arg(csv)
+        .output()
+        .unwrap()
+}
+
 fn addresses(sim: &UrSim, stall_periods: f64) -> UrAddresses {
     let mut rtde = RtdeConfig::e_series(sim.rtde_addr());
     rtde.stall_periods = stall_periods;
@@ -460,13 +476,10 @@ fn the_controller_clock_maps_within_0_3_ms_under_drift_and_jitter() {
 #[test]
 fn refused_fields_are_named() {
     let _timing = untimed();
-    let sim = sim(
-        UrSimConfig::default(),
-        Faults {
-            fieldbus_holds_registers: true,
-            ..Faults::default()
-        },
-    );
+    let sim = sim_with(Faults {
+        fieldbus_holds_registers: true,
+        ..Faults::default()
+    });
     let mut config = RtdeConfig::e_series(sim.rtde_addr());
     config.inputs = vec!["input_int_register_3".into()];
     let client = RtdeClient::spawn(config);
@@ -571,13 +584,7 @@ fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
     let sim = sim(UrSimConfig::default(), Faults::default());
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("rtde.csv");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
-        .args(["-q", "robot", "log", "--host", "127.0.0.1", "--rtde-port"])
-        .arg(sim.rtde_addr().port().to_string())
-        .args(["--seconds", "1", "--out"])
-        .arg(&csv)
-        .output()
-        .unwrap();
+    let out = robot_log(&sim, &csv);
     let stdout = String::from_utf8_lossy(&out.stdout);
     println!("robot log: {}", stdout.trim());
     assert!(
@@ -599,13 +606,10 @@ fn robot_log_writes_one_csv_row_per_package_with_flattened_fields() {
 #[test]
 fn a_protocol_1_controller_is_spoken_to_in_protocol_1() {
     let _timing = untimed();
-    let sim = sim(
-        UrSimConfig::default(),
-        Faults {
-            protocol_v1_only: true,
-            ..Faults::default()
-        },
-    );
+    let sim = sim_with(Faults {
+        protocol_v1_only: true,
+        ..Faults::default()
+    });
     let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
     let connected = next_event(&client, Duration::from_secs(5), |e| {
         matches!(e, RtdeEvent::Connected { .. } | RtdeEvent::Failed(_))
@@ -725,13 +729,10 @@ fn power_on_and_brake_release_poll_until_running() {
 #[test]
 fn a_late_first_package_is_waited_for() {
     let _timing = untimed();
-    let sim = sim(
-        UrSimConfig::default(),
-        Faults {
-            first_package_delay_s: 0.040,
-            ..Faults::default()
-        },
-    );
+    let sim = sim_with(Faults {
+        first_package_delay_s: 0.040,
+        ..Faults::default()
+    });
     let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
     let mut connected_at = None;
     let first = loop {
@@ -761,13 +762,10 @@ fn a_late_first_package_is_waited_for() {
 #[test]
 fn a_controller_that_closes_after_setup_is_retried_with_a_doubling_backoff() {
     let _timing = untimed();
-    let sim = sim(
-        UrSimConfig::default(),
-        Faults {
-            close_after_start: true,
-            ..Faults::default()
-        },
-    );
+    let sim = sim_with(Faults {
+        close_after_start: true,
+        ..Faults::default()
+    });
     let client = RtdeClient::spawn(RtdeConfig::e_series(sim.rtde_addr()));
     let start = Instant::now();
     let mut connections = Vec::new();
@@ -798,22 +796,13 @@ fn a_controller_that_closes_after_setup_is_retried_with_a_doubling_backoff() {
 #[test]
 fn robot_log_without_a_package_fails_and_keeps_the_header() {
     let _timing = untimed();
-    let sim = sim(
-        UrSimConfig::default(),
-        Faults {
-            close_after_start: true,
-            ..Faults::default()
-        },
-    );
+    let sim = sim_with(Faults {
+        close_after_start: true,
+        ..Faults::default()
+    });
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("rtde.csv");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_mmnormd"))
-        .args(["-q", "robot", "log", "--host", "127.0.0.1", "--rtde-port"])
-        .arg(sim.rtde_addr().port().to_string())
-        .args(["--seconds", "1", "--out"])
-        .arg(&csv)
-        .output()
-        .unwrap();
+    let out = robot_log(&sim, &csv);
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!(
         "robot log, no package: exit {:?}: {}",

@@ -121,9 +121,7 @@ pub fn decode(args: DecodeArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     mmnormd::capture::dir::write_atomically(&npy_path, &decoded.npy())?;
-    let plan = profile.frequency_plan();
-    let range_bin_m =
-        299_792_458.0 / (2.0 * plan.frequency_step_hz.abs() * plan.samples_per_chirp as f64);
+    let range_bin_m = profile.frequency_plan().range_bin_m();
     let profiles = decoded.range_profiles_db();
     let title = format!(
         "Range profile, {} frames x {} chirps",

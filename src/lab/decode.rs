@@ -11,6 +11,7 @@ use crate::capture::npy;
 use crate::dca1000::samples::{FrameLayout, LayoutError};
 use crate::plot::{self, Canvas};
 use crate::preview::PreviewError;
+use crate::signal::hann_window;
 
 /// Why a file could not be decoded.
 #[derive(Debug, thiserror::Error)]
@@ -94,9 +95,7 @@ impl Decoded {
     pub fn range_profiles_db(&self) -> Vec<Vec<f64>> {
         let n = self.samples;
         let fft = FftPlanner::<f32>::new().plan_fft_forward(n);
-        let window: Vec<f32> = (0..n)
-            .map(|i| 0.5 - 0.5 * (2.0 * std::f32::consts::PI * i as f32 / n as f32).cos())
-            .collect();
+        let window = hann_window(n);
         let gain: f32 = window.iter().sum::<f32>() * 32768.0;
         let mut sums = vec![vec![0.0f64; n]; self.rx];
         let mut buf = vec![Complex32::new(0.0, 0.0); n];

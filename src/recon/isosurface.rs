@@ -91,6 +91,15 @@ pub fn candidates(f_min: f64, f_max: f64, step: f64, inset: f64) -> Vec<f64> {
     (0..n).map(|i| lo + step * i as f64).collect()
 }
 
+/// The index of the candidate nearest `level`; None when there are none.
+pub fn nearest_candidate(candidates: &[f64], level: f64) -> Option<usize> {
+    (0..candidates.len()).min_by(|&a, &b| {
+        (candidates[a] - level)
+            .abs()
+            .total_cmp(&(candidates[b] - level).abs())
+    })
+}
+
 /// The (max + min)/2 ablation.
 pub fn centre_constant(f_min: f64, f_max: f64) -> f64 {
     0.5 * (f_min + f_max)
@@ -323,27 +332,23 @@ pub enum ComponentGains {
 /// settle to 1e-4 within a handful.
 const GAIN_SWEEPS: usize = 32;
 
-/// Non-negative least squares of `measured` on the magnitudes of `parts` (one spectrum per
-/// component): the gains g ≥ 0 that minimise ‖Σ g_n |parts_n| − measured‖², by projected
+/// Non-negative least squares of `measured` on `magnitudes` (one spectrum's magnitudes per
+/// component): the gains g ≥ 0 that minimise ‖Σ g_n magnitudes_n − measured‖², by projected
 /// coordinate descent on the normal equations. Magnitudes add only where the components'
 /// echoes do not overlap in range, which is where the fit matters: a rim and a floor, or two
 /// objects, at different depths. A component with no echo at this antenna gets 0.
-fn fit_gains(parts: &[&[Complex32]], measured: &[f32]) -> Vec<f32> {
-    let magnitudes: Vec<Vec<f32>> = parts
-        .iter()
-        .map(|p| p.iter().map(|z| z.norm()).collect())
-        .collect();
+fn fit_gains(magnitudes: &[&[f32]], measured: &[f32]) -> Vec<f32> {
     let dot32 = |a: &[f32], b: &[f32]| -> f64 {
         a.iter()
             .zip(b)
             .map(|(x, y)| f64::from(*x) * f64::from(*y))
             .sum()
     };
-    let n = parts.len();
+    let n = magnitudes.len();
     let gram: Vec<Vec<f64>> = (0..n)
         .map(|i| {
             (0..n)
-                .map(|k| dot32(&magnitudes[i], &magnitudes[k]))
+                .map(|k| dot32(magnitudes[i], magnitudes[k]))
                 .collect()
         })
         .collect();
@@ -480,6 +485,15 @@ pub fn simulate_candidates(
     }
     progress.finish();
     let rays_per_antenna_mean = rays_total as f64 / spectra.len().max(1) as f64;
+    // The gain fit reads every spectrum's magnitudes at every cost evaluation: once here.
+    let magnitudes = if opts.component_gains == ComponentGains::Fitted && fields.len() > 1 {
+        spectra
+            .par_iter()
+            .map(|s| s.iter().map(|z| z.norm()).collect())
+            .collect()
+    } else {
+        Vec::new()
+    };
     Ok(CandidateSpectra {
         seed: opts.seed,
         strong_fraction,
@@ -489,7 +503,7 @@ pub fn simulate_candidates(
         antennas: chosen,
         windows,
         spectra,
-        gains: opts.component_gains,
+        magnitudes,
         candidates: candidates.to_vec(),
         rays_per_antenna_mean,
     })
@@ -508,7 +522,9 @@ pub struct CandidateSpectra {
     /// [component][candidate][antenna], flattened: each over its antenna's window, near echoes
     /// projected out ([`Window::project`]).
     spectra: Vec<Vec<Complex32>>,
-    gains: ComponentGains,
+    /// With fitted gains and several components, |spectra|, in the same order; else empty
+    /// and every gain is 1.
+    magnitudes: Vec<Vec<f32>>,
     candidates: Vec<Vec<f64>>,
     rays_per_antenna_mean: f64,
 }
@@ -519,9 +535,14 @@ impl CandidateSpectra {
         self.candidates.iter().map(Vec::len).collect()
     }
 
-    fn spectrum(&self, n: usize, c: usize, j: usize) -> &[Complex32] {
+    /// Index into [`Self::spectra`] of component `n`, candidate `c`, antenna `j`.
+    fn index(&self, n: usize, c: usize, j: usize) -> usize {
         let before: usize = self.candidates[..n].iter().map(Vec::len).sum();
-        &self.spectra[(before + c) * self.antennas.len() + j]
+        (before + c) * self.antennas.len() + j
+    }
+
+    fn spectrum(&self, n: usize, c: usize, j: usize) -> &[Complex32] {
+        &self.spectra[self.index(n, c, j)]
     }
 
     /// Eq. 12 for the joint choice `choice[n]`, per antenna: [`Self::cost`]'s terms.
@@ -543,18 +564,20 @@ impl CandidateSpectra {
     /// Antenna `j`'s term of [`Self::cost`].
     fn antenna_cost(&self, choice: &[usize], j: usize) -> f64 {
         let w = &self.windows[j];
-        let parts: Vec<&[Complex32]> = choice
+        let at: Vec<usize> = choice
             .iter()
             .enumerate()
-            .map(|(n, &c)| self.spectrum(n, c, j))
+            .map(|(n, &c)| self.index(n, c, j))
             .collect();
-        let gains = match self.gains {
-            ComponentGains::Fitted if parts.len() > 1 => fit_gains(&parts, &w.measured),
-            _ => vec![1.0; parts.len()],
+        let gains = if self.magnitudes.is_empty() {
+            vec![1.0; at.len()]
+        } else {
+            let parts: Vec<&[f32]> = at.iter().map(|&i| self.magnitudes[i].as_slice()).collect();
+            fit_gains(&parts, &w.measured)
         };
         let mut sum = vec![Complex32::new(0.0, 0.0); w.measured.len()];
-        for (part, g) in parts.iter().zip(gains) {
-            for (s, z) in sum.iter_mut().zip(part.iter()) {
+        for (&i, g) in at.iter().zip(gains) {
+            for (s, z) in sum.iter_mut().zip(&self.spectra[i]) {
                 *s += z * g;
             }
         }
@@ -595,12 +618,7 @@ pub fn optimise(
     let mut evidence_t = vec![None; counts.len()];
     if let Some(priors) = priors {
         for n in 0..counts.len() {
-            let nearest = (0..counts[n])
-                .min_by(|&a, &b| {
-                    let d = |c: usize| (problem.candidates[n][c] - priors[n]).abs();
-                    d(a).total_cmp(&d(b))
-                })
-                .unwrap_or(0);
+            let nearest = nearest_candidate(&problem.candidates[n], priors[n]).unwrap_or(0);
             if nearest == choice[n] {
                 continue;
             }
@@ -1091,25 +1109,16 @@ mod tests {
     /// at all gets 0.
     #[test]
     fn gains_are_fitted_per_component_and_never_negative() {
-        let echo = |bin: usize| -> Vec<Complex32> {
+        let echo = |bin: usize| -> Vec<f32> {
             (0..16)
                 .map(|i| {
                     let d = i as f32 - bin as f32;
-                    Complex32::new((-d * d / 2.0).exp(), 0.0)
+                    (-d * d / 2.0).exp()
                 })
                 .collect()
         };
-        let (a, b, c, silent) = (
-            echo(3),
-            echo(11),
-            echo(7),
-            vec![Complex32::new(0.0, 0.0); 16],
-        );
-        let measured: Vec<f32> = a
-            .iter()
-            .zip(&b)
-            .map(|(x, y)| 3.0 * x.norm() + 0.5 * y.norm())
-            .collect();
+        let (a, b, c, silent) = (echo(3), echo(11), echo(7), vec![0.0f32; 16]);
+        let measured: Vec<f32> = a.iter().zip(&b).map(|(x, y)| 3.0 * x + 0.5 * y).collect();
         let g = fit_gains(&[&a, &b], &measured);
         assert!(
             (g[0] - 3.0).abs() < 1e-3 && (g[1] - 0.5).abs() < 1e-3,
@@ -1122,8 +1131,8 @@ mod tests {
             "{g:?}"
         );
         // A component whose echo is wrong gets 0 and the other keeps its own gain.
-        let wrong: Vec<Complex32> = echo(11).iter().map(|z| z * 2.0).collect();
-        let lone: Vec<f32> = a.iter().map(|z| 2.0 * z.norm()).collect();
+        let wrong: Vec<f32> = echo(11).iter().map(|z| z * 2.0).collect();
+        let lone: Vec<f32> = a.iter().map(|z| 2.0 * z).collect();
         let g = fit_gains(&[&a, &wrong], &lone);
         assert!((g[0] - 2.0).abs() < 1e-3 && g[1] < 1e-3, "{g:?}");
     }

@@ -18,7 +18,8 @@ use super::components::{label_6, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
-    OptimisationError, OptimisationReport, candidates, centre_constant, optimise, weighted_constant,
+    OptimisationError, OptimisationReport, candidates, centre_constant, nearest_candidate,
+    optimise, weighted_constant,
 };
 use super::lattice::{NotRaster, detect};
 use super::mask::{MaskAttempt, MaskError, li_mask};
@@ -720,8 +721,13 @@ fn mmnorm_points(
         Isosurface::Weighted => (0..fields.len()).map(weighted).collect(),
         Isosurface::Optimized => {
             let o = &config.optimisation;
-            let priors: Vec<f64> = (0..fields.len()).map(weighted).collect();
             let band_m = o.level_band_resolutions * capture.plan.range_bin_m();
+            // The |S|-weighted levels, needed by the band and the evidence test alone.
+            let priors: Vec<f64> = if band_m > 0.0 || o.evidence_t > 0.0 {
+                (0..fields.len()).map(weighted).collect()
+            } else {
+                Vec::new()
+            };
             let banded: Vec<Vec<f64>> = if band_m > 0.0 {
                 (0..fields.len())
                     .map(|n| within_band(&candidate_sets[n], priors[n], band_m))
@@ -777,10 +783,8 @@ fn within_band(candidates: &[f64], level: f64, band_m: f64) -> Vec<f64> {
     if !inside.is_empty() {
         return inside;
     }
-    candidates
-        .iter()
-        .copied()
-        .min_by(|a, b| (a - level).abs().total_cmp(&(b - level).abs()))
+    nearest_candidate(candidates, level)
+        .map(|i| candidates[i])
         .into_iter()
         .collect()
 }
