@@ -187,6 +187,12 @@ fn bad_scenes_are_refused_naming_field_and_value() {
         ),
         (SMALL.replace("z_m = 0.4", "z_m = 0.01"), "aperture plane"),
         (
+            SMALL
+                .replace("shape = \"cylinder\"", "shape = \"bottle\"")
+                .replace("length_m = 0.08", "length_m = 0.03"),
+            "object[0].length_m",
+        ),
+        (
             format!("{SMALL}\n[physics]\nmodel = \"raytrace\"\n"),
             "physics.model",
         ),

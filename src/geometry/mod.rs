@@ -14,7 +14,9 @@ pub mod vec3;
 pub use bvh::{Bvh, Hit};
 pub use io::{MeshError, load_mesh};
 pub use occluders::{FrontOccluders, LocalVisibility, ViewRegion};
-pub use primitives::{bowl_mesh, box_mesh, cup_mesh, cylinder_mesh, plate_mesh, sphere_mesh};
+pub use primitives::{
+    bottle_mesh, bowl_mesh, box_mesh, cup_mesh, cylinder_mesh, plate_mesh, sphere_mesh,
+};
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 

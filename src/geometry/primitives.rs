@@ -294,6 +294,45 @@ pub fn bowl_mesh(radius_m: f64, wall_m: f64, max_edge_m: f64) -> TriMesh {
     revolve(&profile, max_edge_m)
 }
 
+/// A capped bottle standing upright: a cylindrical body of `radius_m`, a rounded shoulder, a
+/// neck and a screw cap, `height_m` tall in all; centred on its bounding box.
+///
+/// The proportions are those of a drinks or detergent bottle and follow from the two sizes:
+/// - the neck's radius is 0.4·`radius_m` (at least 4 mm) and the cap's 1.15 times the neck's,
+///   so the cap overhangs the neck;
+/// - the cap is 0.08·`height_m` tall, the neck 0.06·`height_m`;
+/// - the shoulder is a quarter ellipse `radius_m` tall (at most half the height left under the
+///   neck) from the body's wall, where it is vertical, to the neck, where it is level.
+///
+/// Seen from above it shows surfaces at three depths: the cap's flat top, the shoulder sloping
+/// through every angle, and the flat ring of shoulder around the neck beyond the cap's
+/// overhang. That is what makes a bottle hard for one isosurface level per component.
+pub fn bottle_mesh(radius_m: f64, height_m: f64, max_edge_m: f64) -> TriMesh {
+    let h = height_m / 2.0;
+    let neck_m = (0.4 * radius_m).max(0.004).min(0.9 * radius_m);
+    let cap_m = (1.15 * neck_m).min(radius_m);
+    let cap_bottom = h - 0.08 * height_m;
+    let neck_bottom = cap_bottom - 0.06 * height_m;
+    let shoulder_m = radius_m.min(0.5 * (neck_bottom + h));
+    let shoulder_bottom = neck_bottom - shoulder_m;
+    let steps = divisions(PI / 2.0 * radius_m, max_edge_m).max(8);
+    let mut profile = vec![[0.0, -h], [radius_m, -h], [radius_m, shoulder_bottom]];
+    profile.extend((1..=steps).map(|k| {
+        let a = PI / 2.0 * k as f64 / steps as f64;
+        [
+            neck_m + (radius_m - neck_m) * a.cos(),
+            shoulder_bottom + shoulder_m * a.sin(),
+        ]
+    }));
+    profile.extend([
+        [neck_m, cap_bottom],
+        [cap_m, cap_bottom],
+        [cap_m, h],
+        [0.0, h],
+    ]);
+    revolve(&profile, max_edge_m)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -317,6 +356,27 @@ mod tests {
         closed_volume_close(&cup_mesh(r, h, w, 0.002), cup_volume, 3e-3);
         let bowl_volume = 2.0 / 3.0 * PI * (r.powi(3) - (r - w).powi(3));
         closed_volume_close(&bowl_mesh(r, w, 0.002), bowl_volume, 5e-3);
+        let bottle = bottle_mesh(0.035, 0.19, 0.002);
+        let (lo, hi) = bottle.bounds().unwrap();
+        assert!((lo[2] + 0.095).abs() < 1e-12 && (hi[2] - 0.095).abs() < 1e-12);
+        assert!(
+            (hi[0] - 0.035).abs() < 1e-4,
+            "the body is the widest part: {hi:?}"
+        );
+        // Body, shoulder (a quarter ellipse), neck and cap, by parts.
+        let (neck, cap) = (0.014, 0.0161);
+        let (cap_h, neck_h) = (0.08 * 0.19, 0.06 * 0.19);
+        let body_h = 0.19 - cap_h - neck_h - 0.035;
+        let ellipse_volume = {
+            // ∫ π (neck + (R−neck)·cos a)² · R·cos a da over a ∈ [0, π/2]
+            let (a, b) = (neck, 0.035 - neck);
+            PI * 0.035 * (a * a + PI / 2.0 * a * b + 2.0 / 3.0 * b * b)
+        };
+        let bottle_volume = PI * 0.035f64.powi(2) * body_h
+            + ellipse_volume
+            + PI * neck * neck * neck_h
+            + PI * cap * cap * cap_h;
+        closed_volume_close(&bottle, bottle_volume, 3e-3);
         let bowl = bowl_mesh(r, w, 0.002).bounds().unwrap();
         assert!((bowl.0[2] + r / 2.0).abs() < 1e-12 && (bowl.1[2] - r / 2.0).abs() < 1e-12);
         let plate = plate_mesh([0.1, 0.05], 0.01);

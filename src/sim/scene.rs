@@ -758,7 +758,7 @@ fn resolve_object(
     let allowed: &[&str] = match o.shape.as_str() {
         "plate" | "box" => &["size_m"],
         "sphere" => &["radius_m"],
-        "cylinder" => &["radius_m", "length_m"],
+        "cylinder" | "bottle" => &["radius_m", "length_m"],
         "cup" => &["radius_m", "length_m", "wall_m"],
         "bowl" => &["radius_m", "wall_m"],
         "mesh" => &["path", "scale", "recenter"],
@@ -767,7 +767,7 @@ fn resolve_object(
             return Err(c.fail(
                 &field("shape"),
                 other,
-                "must be one of plate, box, sphere, cylinder, cup, bowl, mesh, point",
+                "must be one of plate, box, sphere, cylinder, bottle, cup, bowl, mesh, point",
             ));
         }
     };
@@ -833,6 +833,18 @@ fn resolve_object(
             required("length_m", o.length_m)?,
             t,
         ),
+        "bottle" => {
+            let radius_m = required("radius_m", o.radius_m)?;
+            let height_m = required("length_m", o.length_m)?;
+            if height_m < 2.0 * radius_m {
+                return Err(c.fail(
+                    &field("length_m"),
+                    height_m,
+                    "a bottle must be at least as tall as it is wide (2·radius_m)",
+                ));
+            }
+            geometry::bottle_mesh(radius_m, height_m, t)
+        }
         "cup" | "bowl" => {
             let radius_m = required("radius_m", o.radius_m)?;
             let wall_m = c.positive(&field("wall_m"), o.wall_m.unwrap_or(DEFAULT_WALL_M))?;
