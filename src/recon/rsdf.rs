@@ -10,13 +10,18 @@
 //! - [`integrate_least_squares`] solves min Σ_edges (f_v − f_u − voxel·(step · (n̂_u + n̂_v)/2))²
 //!   over every 6-neighbour edge inside the component. The normal equations are the graph
 //!   Laplacian system L f = b, solved by conjugate gradients, with f = 0 at the same seed. It
-//!   averages over all paths, so noise in one normal does not propagate along a branch.
+//!   averages over all paths, so noise in one normal does not propagate along a branch. The
+//!   iterations run in parallel over the unknowns (the Laplacian as a gather over each
+//!   unknown's neighbours, dot products summed in fixed chunks), and give the same bits on any
+//!   number of threads.
 //!
 //! `tests::least_squares_beats_bfs_on_noisy_sphere_normals` compares the two on a noisy
 //! sphere; least squares is the default.
 //!
 //! Grids are C-ordered (x, y, z): flat index = (x·NY + y)·NZ + z. f increases along the normals
 //! (towards the radar for surfaces seen from above). Values outside the component are NaN.
+
+use rayon::prelude::*;
 
 /// The BFS neighbour order of the authors' code, as (dx, dy, dz).
 const BFS_ORDER: [[i64; 3]; 6] = [
@@ -91,6 +96,23 @@ impl ComponentField<'_> {
     }
 }
 
+/// Marks an unused slot of an unknown's neighbour list.
+const NO_NEIGHBOUR: usize = usize::MAX;
+
+/// Unknowns per partial sum of [`dot`]: the sums are formed in fixed chunks and added in
+/// order, so the result does not depend on how many threads rayon runs.
+const DOT_CHUNK: usize = 1 << 14;
+
+/// Σ a·c, in parallel and reproducibly (see [`DOT_CHUNK`]).
+fn dot(a: &[f64], c: &[f64]) -> f64 {
+    let partial: Vec<f64> = a
+        .par_chunks(DOT_CHUNK)
+        .zip(c.par_chunks(DOT_CHUNK))
+        .map(|(a, c)| a.iter().zip(c).map(|(p, q)| p * q).sum::<f64>())
+        .collect();
+    partial.iter().sum()
+}
+
 fn step_dot(step: [i64; 3], n: [f32; 3]) -> f64 {
     (0..3).map(|k| step[k] as f64 * f64::from(n[k])).sum()
 }
@@ -147,21 +169,33 @@ pub fn integrate_least_squares(
     }
     let m = voxels.len();
     let mut b = vec![0.0f64; m];
+    // Each unknown's neighbours, so that the Laplacian is a gather per unknown, which rayon can
+    // share out, instead of a scatter per edge, which it cannot.
+    let mut neighbours = vec![[NO_NEIGHBOUR; 6]; m];
+    let mut degree = vec![0u8; m];
     for &(i, j, g) in &edges {
         b[j] += g;
         b[i] -= g;
+        neighbours[i][usize::from(degree[i])] = j;
+        degree[i] += 1;
+        neighbours[j][usize::from(degree[j])] = i;
+        degree[j] += 1;
     }
+    drop(edges);
     let laplacian = |x: &[f64], y: &mut [f64]| {
-        y.fill(0.0);
-        for &(i, j, _) in &edges {
-            let d = x[j] - x[i];
-            y[j] += d;
-            y[i] -= d;
-        }
+        y.par_iter_mut()
+            .zip(neighbours.par_iter())
+            .enumerate()
+            .for_each(|(i, (y, row))| {
+                *y = row
+                    .iter()
+                    .take_while(|&&j| j != NO_NEIGHBOUR)
+                    .map(|&j| x[i] - x[j])
+                    .sum();
+            });
     };
     // Conjugate gradients from x = 0; b sums to zero, so the iterates stay orthogonal to the
     // constant null space.
-    let dot = |a: &[f64], c: &[f64]| a.iter().zip(c).map(|(p, q)| p * q).sum::<f64>();
     let mut x = vec![0.0f64; m];
     let mut r = b.clone();
     let mut p = r.clone();
@@ -174,16 +208,19 @@ pub fn integrate_least_squares(
         }
         laplacian(&p, &mut ap);
         let alpha = rr / dot(&p, &ap).max(1e-300);
-        for k in 0..m {
-            x[k] += alpha * p[k];
-            r[k] -= alpha * ap[k];
-        }
+        x.par_iter_mut()
+            .zip(r.par_iter_mut())
+            .zip(p.par_iter().zip(ap.par_iter()))
+            .for_each(|((x, r), (p, ap))| {
+                *x += alpha * p;
+                *r -= alpha * ap;
+            });
         let rr_new = dot(&r, &r);
         let beta = rr_new / rr;
         rr = rr_new;
-        for k in 0..m {
-            p[k] = r[k] + beta * p[k];
-        }
+        p.par_iter_mut()
+            .zip(r.par_iter())
+            .for_each(|(p, r)| *p = r + beta * *p);
     }
     let origin = x[slot[seed]];
     for (i, &v) in voxels.iter().enumerate() {
@@ -273,6 +310,63 @@ mod tests {
         let (bfs, ls) = errors_of_both(0.0, 1);
         println!("clean shell: RMS error BFS {bfs:.3} voxels, least squares {ls:.3} voxels");
         assert!(ls < 0.1 && bfs < 0.6, "{ls} {bfs}");
+    }
+
+    #[test]
+    fn the_integral_is_the_same_on_any_number_of_threads() {
+        // A slab of 48×48×12 voxels with noisy upward normals: 27 648 unknowns, so that `dot`
+        // sums two chunks and the Laplacian's rows are shared out unevenly.
+        let dims = [48, 48, 12];
+        let mut rng = Rng::new(7);
+        let normals: Vec<[f32; 3]> = (0..48 * 48 * 12)
+            .map(|_| {
+                let (a, b) = rng.normal_pair();
+                let n = [0.2 * a, 0.2 * b, 1.0];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                n.map(|c| (c / len) as f32)
+            })
+            .collect();
+        let labels = vec![1u32; normals.len()];
+        let field = ComponentField {
+            dims,
+            voxel_m: 0.001,
+            normals: &normals,
+            labels: &labels,
+            label: 1,
+        };
+        let on = |threads: usize| -> Vec<u32> {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let f = pool.install(|| integrate_least_squares(&field, 1e-8, 2000));
+            f.iter().map(|v| v.to_bits()).collect()
+        };
+        let one = on(1);
+        assert!(one.iter().all(|&b| f32::from_bits(b).is_finite()));
+        for threads in [2, 3] {
+            assert!(on(threads) == one, "{threads} threads differ from one");
+        }
+    }
+
+    #[test]
+    fn dot_adds_its_chunks_in_order() {
+        let a: Vec<f64> = (0..3 * DOT_CHUNK + 5)
+            .map(|i| (i as f64 * 0.37).sin())
+            .collect();
+        let c: Vec<f64> = (0..a.len()).map(|i| 1.0 + (i % 7) as f64).collect();
+        let reference: f64 = a.iter().zip(&c).map(|(p, q)| p * q).sum();
+        let got = dot(&a, &c);
+        assert!(
+            (got - reference).abs() <= 1e-9 * reference.abs().max(1.0),
+            "{got} {reference}"
+        );
+        let single = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| dot(&a, &c));
+        assert_eq!(got.to_bits(), single.to_bits());
     }
 
     #[test]
