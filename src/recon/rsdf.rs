@@ -156,32 +156,30 @@ pub fn integrate_least_squares(
     for (i, &v) in voxels.iter().enumerate() {
         slot[v] = i;
     }
-    // Edges (i, j, g): f_j − f_i should equal g.
-    let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+    // Every edge (i, j) with f_j − f_i meant to equal g adds ±g to b and joins each unknown's
+    // neighbours, so that the Laplacian is a gather per unknown, which rayon can share out,
+    // instead of a scatter per edge, which it cannot.
+    let m = voxels.len();
+    let mut b = vec![0.0f64; m];
+    let mut neighbours = vec![[NO_NEIGHBOUR; 6]; m];
+    let link = |row: &mut [usize; 6], j: usize| {
+        if let Some(free) = row.iter_mut().find(|k| **k == NO_NEIGHBOUR) {
+            *free = j;
+        }
+    };
     for (i, &v) in voxels.iter().enumerate() {
         for (w, step) in field.neighbours(v) {
             let j = slot[w];
             if j > i {
                 let n = [0, 1, 2].map(|k| 0.5 * (field.normals[v][k] + field.normals[w][k]));
-                edges.push((i, j, field.voxel_m * step_dot(step, n)));
+                let g = field.voxel_m * step_dot(step, n);
+                b[j] += g;
+                b[i] -= g;
+                link(&mut neighbours[i], j);
+                link(&mut neighbours[j], i);
             }
         }
     }
-    let m = voxels.len();
-    let mut b = vec![0.0f64; m];
-    // Each unknown's neighbours, so that the Laplacian is a gather per unknown, which rayon can
-    // share out, instead of a scatter per edge, which it cannot.
-    let mut neighbours = vec![[NO_NEIGHBOUR; 6]; m];
-    let mut degree = vec![0u8; m];
-    for &(i, j, g) in &edges {
-        b[j] += g;
-        b[i] -= g;
-        neighbours[i][usize::from(degree[i])] = j;
-        degree[i] += 1;
-        neighbours[j][usize::from(degree[j])] = i;
-        degree[j] += 1;
-    }
-    drop(edges);
     let laplacian = |x: &[f64], y: &mut [f64]| {
         y.par_iter_mut()
             .zip(neighbours.par_iter())
