@@ -310,6 +310,15 @@ mod tests {
         assert!(ls < 0.1 && bfs < 0.6, "{ls} {bfs}");
     }
 
+    /// `work` run on a pool of `threads` threads.
+    fn on_threads<T: Send>(threads: usize, work: impl FnOnce() -> T + Send) -> T {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(work)
+    }
+
     #[test]
     fn the_integral_is_the_same_on_any_number_of_threads() {
         // A slab of 48×48×12 voxels with noisy upward normals: 27 648 unknowns, so that `dot`
@@ -333,11 +342,7 @@ mod tests {
             label: 1,
         };
         let on = |threads: usize| -> Vec<u32> {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let f = pool.install(|| integrate_least_squares(&field, 1e-8, 2000));
+            let f = on_threads(threads, || integrate_least_squares(&field, 1e-8, 2000));
             f.iter().map(|v| v.to_bits()).collect()
         };
         let one = on(1);
@@ -359,11 +364,7 @@ mod tests {
             (got - reference).abs() <= 1e-9 * reference.abs().max(1.0),
             "{got} {reference}"
         );
-        let single = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap()
-            .install(|| dot(&a, &c));
+        let single = on_threads(1, || dot(&a, &c));
         assert_eq!(got.to_bits(), single.to_bits());
     }
 
