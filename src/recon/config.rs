@@ -295,6 +295,14 @@ pub struct ReconConfig {
     pub split_transitions: bool,
     /// The jump, metres, that splits a component.
     pub split_jump_m: f64,
+    /// Look for surfaces hidden in a brighter surface's range lobe, such as an open cup's rim
+    /// above its floor: each chirp's strongest echo is removed, the rest imaged again, and what
+    /// its mask adds above the brighter surface becomes components of its own
+    /// (`recon/hidden.rs`). False keeps the paper's mask. Costs a second image.
+    pub hidden_surfaces: bool,
+    /// The residual image's voxels join only where its |S| is at least this fraction of the
+    /// first image's peak (0.0316: −30 dB).
+    pub hidden_floor: f64,
     pub integration: Integration,
     pub optimisation: Optimisation,
     pub auto_volume: AutoVolume,
@@ -361,6 +369,8 @@ impl Default for ReconConfig {
             fallback_component_m3: 4.5e-6,
             split_transitions: true,
             split_jump_m: 0.004,
+            hidden_surfaces: true,
+            hidden_floor: 0.0316,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
             auto_volume: AutoVolume::default(),
@@ -439,6 +449,12 @@ impl ReconConfig {
             self.max_mask_box_m3,
             self.max_mask_box_m3 > 0.0,
             "must be positive",
+        )?;
+        check(
+            "hidden_floor",
+            self.hidden_floor,
+            self.hidden_floor > 0.0 && self.hidden_floor < 1.0,
+            "must lie between 0 and 1 (a fraction of the image's peak)",
         )?;
         check(
             "min_component_m3",

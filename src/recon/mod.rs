@@ -18,6 +18,7 @@
 pub mod baselines;
 pub mod components;
 pub mod config;
+pub mod hidden;
 pub mod image;
 pub mod isosurface;
 pub mod kernel;

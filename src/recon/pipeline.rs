@@ -11,17 +11,19 @@ use std::borrow::Cow;
 use std::time::Instant;
 
 use num_complex::Complex32;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::baselines::{backprojection_points, interferometric_points};
-use super::components::{label_6, retain_reaching};
+use super::components::{label_6, label_6_keyed, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
+use super::hidden::{HiddenSummary, hidden_voxels, keep_above, without_strongest_echoes};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, nearest_candidate,
     optimise, weighted_constant,
 };
-use super::lattice::{NotRaster, detect};
+use super::lattice::{Lattice, NotRaster, detect};
 use super::mask::{MaskAttempt, MaskError, li_mask};
 use super::near_echo::{NearEchoCanceller, without_near_echoes};
 use super::normals::{Candidates, normal_field};
@@ -103,6 +105,9 @@ pub struct Summary {
     /// How the components were split at sharp transitions, when they were.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub split: Option<SplitSummary>,
+    /// What the search for surfaces hidden in a brighter one's range lobe added, when it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hidden: Option<HiddenSummary>,
     pub components: Vec<ComponentSummary>,
     pub optimisation: Option<OptimisationReport>,
     pub interferometric_reference_z_m: Option<f64>,
@@ -170,6 +175,9 @@ pub struct Imaged {
     pub profiles: Option<RangeProfiles>,
     pub image: Vec<Complex32>,
     pub magnitude: Vec<f32>,
+    /// |S| of the capture with each chirp's strongest echo removed (`recon::hidden`), imaged
+    /// the same way, when `hidden_surfaces` is on and the method is mmNorm.
+    pub hidden_magnitude: Option<Vec<f32>>,
     /// Range migration's spectral vote vectors `Re(conj(S)·Σ_j I_j u_j)/|S|`, when it made the
     /// image for mmNorm with unit candidates and `spectral_normals`.
     pub votes: Option<Vec<[f32; 3]>>,
@@ -259,20 +267,17 @@ pub fn image_volume(
     };
     let want_votes =
         config.method == Method::Mmnorm && config.unit_candidates && config.spectral_normals;
-    let (image, profiles, votes, imaging) = match lattice {
+    let formed = form_image(
+        capture,
+        &grid,
+        &core,
+        &lattice,
+        config.pad_factor,
+        want_votes,
+        quiet,
+    );
+    let imaging = match &lattice {
         Ok(lattice) => {
-            let mut rma = rma_image(capture, &grid, &lattice, want_votes, quiet);
-            if !core.is_whole(&grid) {
-                // The transform's gate and kz grid follow the grid's extent, so the core is
-                // imaged on its own too and keeps that image: the margin adds voxels around
-                // the unmargined image without changing it.
-                let inner = rma_image(capture, &core.grid(&grid), &lattice, want_votes, quiet);
-                core.paste(&grid, &mut rma.image, &inner.image);
-                if let (Some(votes), Some(inner_votes)) = (rma.votes.as_mut(), &inner.votes) {
-                    core.paste(&grid, votes, inner_votes);
-                }
-                rma.report = inner.report;
-            }
             let reason = format!(
                 "the phase centres form a {}×{} raster of {:.3}×{:.3} mm (largest snap {:.3} mm)",
                 lattice.dims[0],
@@ -282,46 +287,116 @@ pub fn image_volume(
                 lattice.max_lateral_offset_m * 1e3
             );
             tracing::info!("imaging: range migration; {reason}");
-            let report = ImagingReport {
+            ImagingReport {
                 requested: config.imaging,
                 used: Imaging::Rma,
                 reason,
-                rma: Some(rma.report),
+                rma: formed.rma.clone(),
                 near_echo_antennas,
-            };
-            (rma.image, None, rma.votes, report)
+            }
         }
         Err(reason) => {
             if config.imaging == Imaging::Auto {
                 tracing::info!("imaging: backprojection; not a raster: {reason}");
             }
-            let profiles = RangeProfiles::new(capture, &grid, config.pad_factor);
-            let progress = Progress::new("image", grid.dims[0] as u64, quiet);
-            let image = backproject(capture, &grid, &profiles, Some(&progress));
-            progress.finish();
-            let report = ImagingReport {
+            ImagingReport {
                 requested: config.imaging,
                 used: Imaging::Backprojection,
-                reason,
+                reason: reason.clone(),
                 rma: None,
                 near_echo_antennas,
-            };
-            (image, Some(profiles), None, report)
+            }
         }
     };
-    let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
+    let magnitude: Vec<f32> = formed.image.iter().map(|s| s.norm()).collect();
     stages.lap("image");
+    let hidden_magnitude = (config.method == Method::Mmnorm && config.hidden_surfaces).then(|| {
+        let (lo, hi) = core.extent_m(&grid);
+        let opts = &config.optimisation;
+        let canceller = NearEchoCanceller::of_cost(capture.plan.samples_per_chirp, opts);
+        let residual =
+            without_strongest_echoes(capture, lo, hi, &canceller, opts.cost_pad_factor as i64);
+        let image = form_image(
+            &residual,
+            &grid,
+            &core,
+            &lattice,
+            config.pad_factor,
+            false,
+            true,
+        )
+        .image;
+        let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
+        stages.lap("hidden image");
+        magnitude
+    });
     Ok(Imaged {
         grid,
         core,
         auto_volume,
-        profiles,
-        image,
+        profiles: formed.profiles,
+        image: formed.image,
         magnitude,
-        votes,
+        hidden_magnitude,
+        votes: formed.votes,
         imaging,
         stages: stages.list,
     })
+}
+
+/// One image of `capture` on `grid`: by range migration on `lattice` (the core imaged on its
+/// own and pasted in, so the margin does not change it), or by backprojection when the capture
+/// is not a raster.
+struct Formed {
+    image: Vec<Complex32>,
+    profiles: Option<RangeProfiles>,
+    votes: Option<Vec<[f32; 3]>>,
+    rma: Option<RmaReport>,
+}
+
+fn form_image(
+    capture: &Capture,
+    grid: &VoxelGrid,
+    core: &Core,
+    lattice: &Result<Lattice, String>,
+    pad_factor: usize,
+    want_votes: bool,
+    quiet: bool,
+) -> Formed {
+    match lattice {
+        Ok(lattice) => {
+            let mut rma = rma_image(capture, grid, lattice, want_votes, quiet);
+            if !core.is_whole(grid) {
+                // The transform's gate and kz grid follow the grid's extent, so the core is
+                // imaged on its own too and keeps that image: the margin adds voxels around
+                // the unmargined image without changing it.
+                let inner = rma_image(capture, &core.grid(grid), lattice, want_votes, quiet);
+                core.paste(grid, &mut rma.image, &inner.image);
+                if let (Some(votes), Some(inner_votes)) = (rma.votes.as_mut(), &inner.votes) {
+                    core.paste(grid, votes, inner_votes);
+                }
+                rma.report = inner.report;
+            }
+            Formed {
+                image: rma.image,
+                profiles: None,
+                votes: rma.votes,
+                rma: Some(rma.report),
+            }
+        }
+        Err(_) => {
+            let profiles = RangeProfiles::new(capture, grid, pad_factor);
+            let progress = Progress::new("image", grid.dims[0] as u64, quiet);
+            let image = backproject(capture, grid, &profiles, Some(&progress));
+            progress.finish();
+            Formed {
+                image,
+                profiles: Some(profiles),
+                votes: None,
+                rma: None,
+            }
+        }
+    }
 }
 
 /// Runs `config.method` on an imaged volume (made by [`image_volume`] with the same capture
@@ -479,6 +554,7 @@ fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (S
         image_peak,
         mask: None,
         split: None,
+        hidden: None,
         components: Vec::new(),
         optimisation: None,
         interferometric_reference_z_m: None,
@@ -548,6 +624,36 @@ fn mmnorm_fields(
         config.li_max_iterations,
         config.max_mask_box_m3,
     )?;
+    let mut mask = mask;
+    // Surfaces hidden in a brighter one's range lobe join the mask under a key of their own.
+    let hidden = match &imaged.hidden_magnitude {
+        Some(residual) => {
+            let residual_mask = li_mask(
+                residual,
+                grid,
+                &imaged.core,
+                config.normal_floor,
+                config.li_voxels,
+                &config.li_exponents,
+                config.li_max_iterations,
+                config.max_mask_box_m3,
+            );
+            let peak = (magnitude.par_iter().enumerate())
+                .filter(|&(v, _)| imaged.core.contains(grid, v))
+                .map(|(_, &m)| m)
+                .reduce(|| 0.0f32, f32::max);
+            residual_mask.ok().map(|r| {
+                let floor = peak * config.hidden_floor as f32;
+                let hidden = hidden_voxels(&r.mask, residual, &mask.mask, floor);
+                mask.mask
+                    .par_iter_mut()
+                    .zip(&hidden)
+                    .for_each(|(m, &h)| *m |= h);
+                hidden
+            })
+        }
+        None => None,
+    };
     stages.lap("mask");
     let mask_voxels = mask.mask.iter().filter(|&&m| m).count();
     let spectral = imaged
@@ -595,7 +701,15 @@ fn mmnorm_fields(
         .collect();
     // Components that lie in the margin alone are not the echo region's.
     let label = |min_voxels: usize| {
-        let labelled = label_6(&with_normal, grid.dims, min_voxels);
+        let labelled = match &hidden {
+            None => label_6(&with_normal, grid.dims, min_voxels),
+            Some(hidden) => {
+                let keys: Vec<u32> = (with_normal.par_iter().zip(hidden))
+                    .map(|(&m, &h)| u32::from(m) * (1 + u32::from(h)))
+                    .collect();
+                label_6_keyed(&keys, grid.dims, min_voxels)
+            }
+        };
         if imaged.core.is_whole(grid) {
             return labelled;
         }
@@ -608,6 +722,18 @@ fn mmnorm_fields(
         min_voxels = to_voxels(config.fallback_component_m3);
         labelled = label(min_voxels);
         used_fallback = true;
+    }
+    if let Some(hidden) = &hidden {
+        let rise_voxels = 0.5 * capture.plan.range_bin_m() / grid.voxel_m;
+        let (kept, report) = keep_above(labelled, hidden, magnitude, grid.dims, rise_voxels);
+        tracing::info!(
+            "hidden surfaces: {} voxels, {} components, {} kept",
+            report.voxels,
+            report.components,
+            report.kept
+        );
+        labelled = kept;
+        summary.hidden = Some(report);
     }
     summary.mask = Some(MaskSummary {
         normal_floor: config.normal_floor,

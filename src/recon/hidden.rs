@@ -1,0 +1,228 @@
+//! Surfaces hidden in a brighter surface's range lobe.
+//!
+//! Li's threshold is one level for the whole image. An open cup seen from above returns its
+//! rim 15–24 dB under its floor (under the point-scatterer model; 7 dB under physical optics),
+//! and the rim lies 5 cm above the floor, about one range resolution (c/2B, 3.75 cm at 4 GHz).
+//! There the floor's own range lobe and sidelobes are as bright as the rim, so no threshold
+//! takes the rim in without the floor's lobe and sidelobes too (`docs/bench/physics/notes.md`).
+//!
+//! What sets the rim apart is that it is a different echo. Each antenna's chirp holds a few
+//! tones, one per surface it sees, and the brightest is the one that hides the others. So:
+//! 1. [`without_strongest_echoes`] subtracts from every chirp its strongest tone inside the
+//!    range window that the components' box can reach ([`NearEchoCanceller::without_strongest_in`]).
+//!    What remains is every other echo, without the strongest one's lobe and sidelobes.
+//! 2. The pipeline images that residual the same way as the capture, and takes Li's mask of
+//!    the residual image, where it holds at least `hidden_floor` of the first image's peak
+//!    and lies outside the first mask ([`hidden_voxels`]).
+//! 3. Those voxels join the mask under a key of their own, so they form components apart from
+//!    the first mask's even where they touch them. [`keep_above`] then keeps such a component
+//!    only where it shares columns with the first components and lies, over those columns, at
+//!    least half a range resolution above their |S|-weighted depth.
+//!
+//! Step 3's rule has three reasons:
+//! - A range lobe hides only what lies in its own columns. A component beside the bright one's
+//!   columns was not hidden by its lobe, and is what the fit left (below).
+//! - The residual holds what the single-tone fit leaves of the strongest echo (a surface is not
+//!   exactly one tone). That residue lies at the surface's own depth, which its component
+//!   already covers. A flat plate's residue formed three components 0.4–1.0 cm from the plate.
+//! - Seen from above, a surface under a brighter one in the same columns is hidden by it, so a
+//!   residual there is a sidelobe. A surface above a brighter one is not hidden: the cup's rim
+//!   above its floor, a shoulder above a bottle's body.
+//!
+//! Neither the paper nor the authors' code does this: §8 names hollow objects as a limit of one
+//! level per component.
+
+use rayon::prelude::*;
+
+use super::components::Components;
+use super::near_echo::{NearEchoCanceller, box_window};
+use crate::capture::Capture;
+
+/// `capture` with each chirp's strongest echo inside the round trips of the box `lo..hi`
+/// (its [`box_window`], `pad_bins` padded bins wider on each side) subtracted.
+pub fn without_strongest_echoes(
+    capture: &Capture,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    canceller: &NearEchoCanceller,
+    pad_bins: i64,
+) -> Capture {
+    let t = capture.plan.samples_per_chirp;
+    let mut samples = vec![num_complex::Complex32::new(0.0, 0.0); capture.samples.len()];
+    samples.par_chunks_mut(t).enumerate().for_each(|(a, out)| {
+        let (first, len) = box_window(capture, a, lo, hi, canceller.fft_len(), pad_bins);
+        let chirp = canceller.without_strongest_in(capture.chirp(a), first, len);
+        out[..chirp.len()].copy_from_slice(&chirp);
+    });
+    let mut residual = capture.clone();
+    residual.samples = std::sync::Arc::new(samples);
+    residual
+}
+
+/// The voxels of the residual's mask (`residual_mask`, Li's on the residual image) where the
+/// residual's |S| is at least `floor` and the first mask (`mask`) is not set.
+pub fn hidden_voxels(
+    residual_mask: &[bool],
+    residual_magnitude: &[f32],
+    mask: &[bool],
+    floor: f32,
+) -> Vec<bool> {
+    (residual_mask.par_iter().zip(residual_magnitude).zip(mask))
+        .map(|((&r, &m), &first)| r && m >= floor && !first)
+        .collect()
+}
+
+/// What [`keep_above`] found.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct HiddenSummary {
+    /// Voxels the residual's mask added.
+    pub voxels: usize,
+    /// Components made of them.
+    pub components: usize,
+    /// Those kept (above the other components, in columns they share).
+    pub kept: usize,
+}
+
+/// `labelled` without the components of `hidden` voxels that share no column with the other
+/// components, or lie, over the columns they share, less than `rise_voxels` above those
+/// components' |S|-weighted depth (the median over their voxels in such columns). Labels are
+/// renumbered 1…m in their old order. Grids are C order with z fastest.
+pub fn keep_above(
+    labelled: Components,
+    hidden: &[bool],
+    magnitude: &[f32],
+    dims: [usize; 3],
+    rise_voxels: f64,
+) -> (Components, HiddenSummary) {
+    let nz = dims[2];
+    let n = labelled.sizes.len();
+    // |S|-weighted depth of the other components in each column.
+    let columns = dims[0] * dims[1];
+    let mut weight = vec![0f64; columns];
+    let mut moment = vec![0f64; columns];
+    for (v, &l) in labelled.labels.iter().enumerate() {
+        if l != 0 && !hidden[v] {
+            let m = f64::from(magnitude[v]);
+            weight[v / nz] += m;
+            moment[v / nz] += m * (v % nz) as f64;
+        }
+    }
+    let mut is_hidden = vec![false; n];
+    let mut rises: Vec<Vec<f64>> = vec![Vec::new(); n];
+    for (v, &l) in labelled.labels.iter().enumerate() {
+        if l == 0 || !hidden[v] {
+            continue;
+        }
+        let k = l as usize - 1;
+        is_hidden[k] = true;
+        let c = v / nz;
+        if weight[c] > 0.0 {
+            rises[k].push((v % nz) as f64 - moment[c] / weight[c]);
+        }
+    }
+    let keep: Vec<bool> = (0..n)
+        .map(|k| {
+            if !is_hidden[k] {
+                return true;
+            }
+            if rises[k].is_empty() {
+                return false;
+            }
+            let r = &mut rises[k];
+            r.sort_by(f64::total_cmp);
+            r[r.len() / 2] >= rise_voxels
+        })
+        .collect();
+    let summary = HiddenSummary {
+        voxels: hidden.iter().filter(|&&h| h).count(),
+        components: is_hidden.iter().filter(|&&h| h).count(),
+        kept: (0..n).filter(|&k| is_hidden[k] && keep[k]).count(),
+    };
+    let Components { mut labels, sizes } = labelled;
+    let mut renumber = vec![0u32; n];
+    let mut kept_sizes = Vec::new();
+    for k in 0..n {
+        if keep[k] {
+            kept_sizes.push(sizes[k]);
+            renumber[k] = kept_sizes.len() as u32;
+        }
+    }
+    labels.par_iter_mut().for_each(|l| {
+        if *l != 0 {
+            *l = renumber[*l as usize - 1];
+        }
+    });
+    (
+        Components {
+            labels,
+            sizes: kept_sizes,
+        },
+        summary,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recon::components::label_6_keyed;
+
+    /// A 6×1×40 grid: a bright "floor" over columns 0–3 at z 5–9, and four hidden blocks: one
+    /// 20 voxels above the floor in columns 2–3 (a rim), one at the floor's depth in columns
+    /// 2–3 but apart from it (residue), one under it in columns 0–1 (a sidelobe), one in
+    /// column 5 alone (beside the floor). With a rise of 10 voxels only the rim stays.
+    #[test]
+    fn only_hidden_components_above_the_bright_ones_stay() {
+        let dims = [6, 1, 40];
+        let at = |x: usize, z: usize| x * 40 + z;
+        let mut keys = vec![0u32; 240];
+        let mut magnitude = vec![0f32; 240];
+        let mut hidden = vec![false; 240];
+        for x in 0..4 {
+            for z in 5..10 {
+                keys[at(x, z)] = 1;
+                magnitude[at(x, z)] = 10.0;
+            }
+        }
+        let mut block = |xs: std::ops::Range<usize>, zs: std::ops::Range<usize>| {
+            for x in xs {
+                for z in zs.clone() {
+                    keys[at(x, z)] = 2;
+                    hidden[at(x, z)] = true;
+                    magnitude[at(x, z)] = 1.0;
+                }
+            }
+        };
+        block(2..4, 26..31); // rim: 21 voxels above the floor's centre (z 7)
+        block(2..4, 11..13); // residue: 5 above
+        block(0..2, 0..3); // under the floor
+        block(5..6, 26..31); // beside the floor's columns
+        let labelled = label_6_keyed(&keys, dims, 1);
+        assert_eq!(labelled.sizes.len(), 5);
+        let (kept, summary) = keep_above(labelled, &hidden, &magnitude, dims, 10.0);
+        assert_eq!(
+            summary,
+            HiddenSummary {
+                voxels: 10 + 4 + 6 + 5,
+                components: 4,
+                kept: 1,
+            }
+        );
+        assert_eq!(kept.sizes, vec![20, 10]);
+        assert_eq!(kept.labels[at(0, 5)], 1, "the floor");
+        assert_eq!(kept.labels[at(2, 28)], 2, "the rim");
+        for v in [at(2, 11), at(0, 1), at(5, 28)] {
+            assert_eq!(kept.labels[v], 0);
+        }
+    }
+
+    #[test]
+    fn hidden_voxels_lie_in_the_residual_mask_above_the_floor_and_outside_the_first_mask() {
+        let residual_mask = [true, true, true, false];
+        let magnitude = [2.0, 0.5, 2.0, 2.0];
+        let mask = [false, false, true, false];
+        assert_eq!(
+            hidden_voxels(&residual_mask, &magnitude, &mask, 1.0),
+            vec![true, false, false, false]
+        );
+    }
+}
