@@ -344,9 +344,7 @@ pub fn image_volume(
     })
 }
 
-/// One image of `capture` on `grid`: by range migration on `lattice` (the core imaged on its
-/// own and pasted in, so the margin does not change it), or by backprojection when the capture
-/// is not a raster.
+/// An image and what its method made beside it.
 struct Formed {
     image: Vec<Complex32>,
     profiles: Option<RangeProfiles>,
@@ -354,6 +352,9 @@ struct Formed {
     rma: Option<RmaReport>,
 }
 
+/// One image of `capture` on `grid`: by range migration on `lattice` (the core imaged on its
+/// own and pasted in, so the margin does not change it), or by backprojection when the capture
+/// is not a raster.
 fn form_image(
     capture: &Capture,
     grid: &VoxelGrid,
@@ -614,7 +615,7 @@ fn mmnorm_fields(
     } else {
         Candidates::Displacement
     };
-    let mask = li_mask(
+    let mut mask = li_mask(
         magnitude,
         grid,
         &imaged.core,
@@ -624,7 +625,6 @@ fn mmnorm_fields(
         config.li_max_iterations,
         config.max_mask_box_m3,
     )?;
-    let mut mask = mask;
     // Surfaces hidden in a brighter one's range lobe join the mask under a key of their own.
     let hidden = match &imaged.hidden_magnitude {
         Some(residual) => {
