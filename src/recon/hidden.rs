@@ -16,8 +16,11 @@
 //!    and lies outside the first mask ([`hidden_voxels`]).
 //! 3. Those voxels join the mask under a key of their own, so they form components apart from
 //!    the first mask's even where they touch them. [`keep_above`] then keeps such a component
-//!    only where it shares columns with the first components and lies, over those columns, at
-//!    least half a range resolution above their |S|-weighted depth.
+//!    only where it shares columns with the first components and its echo lies, over those
+//!    columns, at least half a range resolution above their |S|-weighted depth (both depths
+//!    weighted by |S|: the residual's for the hidden component), and where no residual 10 dB
+//!    brighter than it lies elsewhere in those columns (it would be that echo's sidelobe: two
+//!    plates 8 mm apart leave the other plate in the residual, with its sidelobes).
 //!
 //! Step 3's rule has three reasons:
 //! - A range lobe hides only what lies in its own columns. A component beside the bright one's
@@ -72,6 +75,10 @@ pub fn hidden_voxels(
         .collect()
 }
 
+/// A hidden component whose columns hold, outside it, a residual this much brighter than its
+/// own peak (dB) is that echo's range sidelobe (13 dB under its main lobe, unwindowed).
+const SIDELOBE_DB: f32 = 10.0;
+
 /// What [`keep_above`] found.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct HiddenSummary {
@@ -85,12 +92,16 @@ pub struct HiddenSummary {
 
 /// `labelled` without the components of `hidden` voxels that share no column with the other
 /// components, or lie, over the columns they share, less than `rise_voxels` above those
-/// components' |S|-weighted depth (the median over their voxels in such columns). Labels are
-/// renumbered 1…m in their old order. Grids are C order with z fastest.
+/// components' |S|-weighted depth. A hidden component's rise is the mean over its voxels in
+/// such columns, weighted by the residual's |S| (`residual_magnitude`): where its echo is, not
+/// where its mask happens to reach. A component is dropped too when its columns hold, outside
+/// it, a residual [`SIDELOBE_DB`] brighter than its own peak: it is that echo's sidelobe. Labels
+/// are renumbered 1…m in their old order. Grids are C order with z fastest.
 pub fn keep_above(
     labelled: Components,
     hidden: &[bool],
     magnitude: &[f32],
+    residual_magnitude: &[f32],
     dims: [usize; 3],
     rise_voxels: f64,
 ) -> (Components, HiddenSummary) {
@@ -108,7 +119,8 @@ pub fn keep_above(
         }
     }
     let mut is_hidden = vec![false; n];
-    let mut rises: Vec<Vec<f64>> = vec![Vec::new(); n];
+    // Per component: Σ w·rise and Σ w over its voxels in shared columns, w = residual |S|.
+    let mut rise_sums = vec![(0f64, 0f64); n];
     for (v, &l) in labelled.labels.iter().enumerate() {
         if l == 0 || !hidden[v] {
             continue;
@@ -117,20 +129,33 @@ pub fn keep_above(
         is_hidden[k] = true;
         let c = v / nz;
         if weight[c] > 0.0 {
-            rises[k].push((v % nz) as f64 - moment[c] / weight[c]);
+            let w = f64::from(residual_magnitude[v]);
+            rise_sums[k].0 += w * ((v % nz) as f64 - moment[c] / weight[c]);
+            rise_sums[k].1 += w;
         }
     }
+    // Per component: its residual peak, and the residual's peak elsewhere in its columns.
+    let mut own_peak = vec![0f32; n];
+    let mut column_of = vec![u32::MAX; columns];
+    for (v, &l) in labelled.labels.iter().enumerate() {
+        if l != 0 && hidden[v] {
+            own_peak[l as usize - 1] = own_peak[l as usize - 1].max(residual_magnitude[v]);
+            column_of[v / nz] = l;
+        }
+    }
+    let mut beside_peak = vec![0f32; n];
+    for (v, &m) in residual_magnitude.iter().enumerate() {
+        let l = column_of[v / nz];
+        if l != u32::MAX && labelled.labels[v] != l {
+            beside_peak[l as usize - 1] = beside_peak[l as usize - 1].max(m);
+        }
+    }
+    let sidelobe = 10f32.powf(SIDELOBE_DB / 20.0);
     let keep: Vec<bool> = (0..n)
         .map(|k| {
-            if !is_hidden[k] {
-                return true;
-            }
-            if rises[k].is_empty() {
-                return false;
-            }
-            let r = &mut rises[k];
-            r.sort_by(f64::total_cmp);
-            r[r.len() / 2] >= rise_voxels
+            let (sum, w) = rise_sums[k];
+            !is_hidden[k]
+                || (w > 0.0 && sum / w >= rise_voxels && beside_peak[k] < own_peak[k] * sidelobe)
         })
         .collect();
     let summary = HiddenSummary {
@@ -198,7 +223,11 @@ mod tests {
         block(5..6, 26..31); // beside the floor's columns
         let labelled = label_6_keyed(&keys, dims, 1);
         assert_eq!(labelled.sizes.len(), 5);
-        let (kept, summary) = keep_above(labelled, &hidden, &magnitude, dims, 10.0);
+        // The residual holds the hidden blocks only: the floor's echo was removed.
+        let residual: Vec<f32> = (0..240)
+            .map(|v| if hidden[v] { magnitude[v] } else { 0.0 })
+            .collect();
+        let (kept, summary) = keep_above(labelled, &hidden, &magnitude, &residual, dims, 10.0);
         assert_eq!(
             summary,
             HiddenSummary {

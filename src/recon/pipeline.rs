@@ -723,9 +723,16 @@ fn mmnorm_fields(
         labelled = label(min_voxels);
         used_fallback = true;
     }
-    if let Some(hidden) = &hidden {
+    if let (Some(hidden), Some(residual)) = (&hidden, &imaged.hidden_magnitude) {
         let rise_voxels = 0.5 * capture.plan.range_bin_m() / grid.voxel_m;
-        let (kept, report) = keep_above(labelled, hidden, magnitude, grid.dims, rise_voxels);
+        let (kept, report) = keep_above(
+            labelled,
+            hidden,
+            magnitude,
+            residual,
+            grid.dims,
+            rise_voxels,
+        );
         tracing::info!(
             "hidden surfaces: {} voxels, {} components, {} kept",
             report.voxels,
