@@ -77,7 +77,7 @@ pub fn hidden_voxels(
 
 /// A hidden component whose columns hold, outside it, a residual this much brighter than its
 /// own peak (dB) is that echo's range sidelobe (13 dB under its main lobe, unwindowed).
-const SIDELOBE_DB: f32 = 10.0;
+pub const SIDELOBE_DB: f32 = 10.0;
 
 /// What [`keep_above`] found.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
