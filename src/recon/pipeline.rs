@@ -615,29 +615,23 @@ fn mmnorm_fields(
     } else {
         Candidates::Displacement
     };
-    let mut mask = li_mask(
-        magnitude,
-        grid,
-        &imaged.core,
-        config.normal_floor,
-        config.li_voxels,
-        &config.li_exponents,
-        config.li_max_iterations,
-        config.max_mask_box_m3,
-    )?;
+    let li = |m: &[f32]| {
+        li_mask(
+            m,
+            grid,
+            &imaged.core,
+            config.normal_floor,
+            config.li_voxels,
+            &config.li_exponents,
+            config.li_max_iterations,
+            config.max_mask_box_m3,
+        )
+    };
+    let mut mask = li(magnitude)?;
     // Surfaces hidden in a brighter one's range lobe join the mask under a key of their own.
     let hidden = match &imaged.hidden_magnitude {
         Some(residual) => {
-            let residual_mask = li_mask(
-                residual,
-                grid,
-                &imaged.core,
-                config.normal_floor,
-                config.li_voxels,
-                &config.li_exponents,
-                config.li_max_iterations,
-                config.max_mask_box_m3,
-            );
+            let residual_mask = li(residual);
             let peak = (magnitude.par_iter().enumerate())
                 .filter(|&(v, _)| imaged.core.contains(grid, v))
                 .map(|(_, &m)| m)
