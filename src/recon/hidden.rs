@@ -19,8 +19,13 @@
 //!    only where it shares columns with the first components and its echo lies, over those
 //!    columns, at least half a range resolution above their |S|-weighted depth (both depths
 //!    weighted by |S|: the residual's for the hidden component), and where no residual 10 dB
-//!    brighter than it lies elsewhere in those columns (it would be that echo's sidelobe: two
-//!    plates 8 mm apart leave the other plate in the residual, with its sidelobes).
+//!    brighter than it lies elsewhere in those columns (it would be that echo's sidelobe).
+//!
+//! This does not yet leave a step alone. Two plates 8 mm apart, inside one range bin, leave the
+//! other plate in the residual, and a component from it is still kept: with the option on, the
+//! step and the plates joined by a wall in `tests/recon_scenes.rs` fail. That, and the reduced
+//! suite's lower 25th percentile, is why `hidden_surfaces` is off by default
+//! (`docs/bench/physics/notes.md` has the figures).
 //!
 //! Step 3's rule has three reasons:
 //! - A range lobe hides only what lies in its own columns. A component beside the bright one's
@@ -136,18 +141,26 @@ pub fn keep_above(
     }
     // Per component: its residual peak, and the residual's peak elsewhere in its columns.
     let mut own_peak = vec![0f32; n];
-    let mut column_of = vec![u32::MAX; columns];
-    for (v, &l) in labelled.labels.iter().enumerate() {
-        if l != 0 && hidden[v] {
-            own_peak[l as usize - 1] = own_peak[l as usize - 1].max(residual_magnitude[v]);
-            column_of[v / nz] = l;
-        }
-    }
     let mut beside_peak = vec![0f32; n];
-    for (v, &m) in residual_magnitude.iter().enumerate() {
-        let l = column_of[v / nz];
-        if l != u32::MAX && labelled.labels[v] != l {
-            beside_peak[l as usize - 1] = beside_peak[l as usize - 1].max(m);
+    let mut in_column: Vec<u32> = Vec::new();
+    for c in 0..columns {
+        let voxels = c * nz..(c + 1) * nz;
+        in_column.clear();
+        for v in voxels.clone() {
+            let l = labelled.labels[v];
+            if l != 0 && hidden[v] {
+                own_peak[l as usize - 1] = own_peak[l as usize - 1].max(residual_magnitude[v]);
+                if !in_column.contains(&l) {
+                    in_column.push(l);
+                }
+            }
+        }
+        for &l in &in_column {
+            let beside = (voxels.clone())
+                .filter(|&v| labelled.labels[v] != l)
+                .map(|v| residual_magnitude[v])
+                .fold(0.0f32, f32::max);
+            beside_peak[l as usize - 1] = beside_peak[l as usize - 1].max(beside);
         }
     }
     let sidelobe = 10f32.powf(SIDELOBE_DB / 20.0);
