@@ -8,8 +8,8 @@
 //!
 //! What sets the rim apart is that it is a different echo. Each antenna's chirp holds a few
 //! tones, one per surface it sees, and the brightest is the one that hides the others. So:
-//! 1. [`without_strongest_echoes`] subtracts from every chirp its strongest tone inside the
-//!    range window that the components' box can reach ([`NearEchoCanceller::without_strongest_in`]).
+//! 1. [`without_strongest_echoes`](super::near_echo::without_strongest_echoes) subtracts from every chirp its strongest tone inside the
+//!    range window that the components' box can reach ([`NearEchoCanceller::without_strongest_in`](super::near_echo::NearEchoCanceller::without_strongest_in)).
 //!    What remains is every other echo, without the strongest one's lobe and sidelobes.
 //! 2. The pipeline images that residual the same way as the capture, and takes Li's mask of
 //!    the residual image, where it holds at least `hidden_floor` of the first image's peak
@@ -43,29 +43,6 @@
 use rayon::prelude::*;
 
 use super::components::Components;
-use super::near_echo::{NearEchoCanceller, box_window};
-use crate::capture::Capture;
-
-/// `capture` with each chirp's strongest echo inside the round trips of the box `lo..hi`
-/// (its [`box_window`], `pad_bins` padded bins wider on each side) subtracted.
-pub fn without_strongest_echoes(
-    capture: &Capture,
-    lo: [f64; 3],
-    hi: [f64; 3],
-    canceller: &NearEchoCanceller,
-    pad_bins: i64,
-) -> Capture {
-    let t = capture.plan.samples_per_chirp;
-    let mut samples = vec![num_complex::Complex32::new(0.0, 0.0); capture.samples.len()];
-    samples.par_chunks_mut(t).enumerate().for_each(|(a, out)| {
-        let (first, len) = box_window(capture, a, lo, hi, canceller.fft_len(), pad_bins);
-        let chirp = canceller.without_strongest_in(capture.chirp(a), first, len);
-        out[..chirp.len()].copy_from_slice(&chirp);
-    });
-    let mut residual = capture.clone();
-    residual.samples = std::sync::Arc::new(samples);
-    residual
-}
 
 /// The voxels of the residual's mask (`residual_mask`, Li's on the residual image) where the
 /// residual's |S| is at least `floor` and the first mask (`mask`) is not set.

@@ -57,6 +57,8 @@ pub struct Mask {
     pub attempts: Vec<MaskAttempt>,
     /// The exponent whose threshold made the mask.
     pub exponent: f64,
+    /// max |S| over the core, which the floor and the threshold are relative to.
+    pub peak: f32,
 }
 
 /// Why no mask was made.
@@ -182,6 +184,7 @@ pub fn li_mask(
                 mask,
                 attempts,
                 exponent: e,
+                peak,
             });
         }
         if best.as_ref().is_none_or(|b| box_m3 < b.0) {
@@ -193,6 +196,7 @@ pub fn li_mask(
             mask,
             attempts,
             exponent,
+            peak,
         }),
         None => Err(MaskError::NoThreshold(exponents.to_vec())),
     }

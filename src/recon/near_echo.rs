@@ -86,21 +86,53 @@ pub fn without_near_echoes(
     canceller: &NearEchoCanceller,
     pad_bins: i64,
 ) -> (Capture, usize) {
+    each_chirp_in_box(capture, lo, hi, canceller, pad_bins, |chirp, first, len| {
+        let (chirp, removed) = canceller.clean_chirp(chirp, first, len);
+        (chirp, removed > 0)
+    })
+}
+
+/// `capture` with each chirp's strongest echo inside the round trips of the box `lo..hi` (its
+/// [`box_window`], `pad_bins` padded bins wider on each side) subtracted by
+/// [`NearEchoCanceller::without_strongest_in`].
+pub fn without_strongest_echoes(
+    capture: &Capture,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    canceller: &NearEchoCanceller,
+    pad_bins: i64,
+) -> Capture {
+    each_chirp_in_box(capture, lo, hi, canceller, pad_bins, |chirp, first, len| {
+        (canceller.without_strongest_in(chirp, first, len), true)
+    })
+    .0
+}
+
+/// `capture` with every chirp replaced by `f(chirp, first, len)` of its box window, and how
+/// many of them `f` said it changed.
+fn each_chirp_in_box(
+    capture: &Capture,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    canceller: &NearEchoCanceller,
+    pad_bins: i64,
+    f: impl Fn(&[Complex32], i64, usize) -> (Vec<Complex32>, bool) + Sync,
+) -> (Capture, usize) {
     let t = capture.plan.samples_per_chirp;
     let mut samples = vec![Complex32::new(0.0, 0.0); capture.samples.len()];
-    let cleaned: usize = samples
+    let changed: usize = samples
         .par_chunks_mut(t)
         .enumerate()
         .map(|(a, out)| {
             let (first, len) = box_window(capture, a, lo, hi, canceller.fft_len(), pad_bins);
-            let (chirp, removed) = canceller.clean_chirp(capture.chirp(a), first, len);
+            let (chirp, changed) = f(capture.chirp(a), first, len);
             out[..chirp.len()].copy_from_slice(&chirp);
-            usize::from(removed > 0)
+            usize::from(changed)
         })
         .sum();
     let mut clean = capture.clone();
     clean.samples = Arc::new(samples);
-    (clean, cleaned)
+    (clean, changed)
 }
 
 /// The near echoes of one chirp (see [`NearEchoCanceller::near_echoes`]).
@@ -359,19 +391,17 @@ impl NearEchoCanceller {
         len: usize,
     ) -> Vec<Complex32> {
         let mut residual: Vec<Complex32> = chirp[..chirp.len().min(self.samples)].to_vec();
-        let spectrum = self.spectrum(&residual);
-        let l = self.fft_len as i64;
-        let Some((offset, peak)) = (0..len)
-            .map(|k| spectrum[(first + k as i64).rem_euclid(l) as usize].norm())
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(&b.1))
+        let window = self.window(&self.spectrum(&residual), first, len);
+        let Some((offset, peak)) =
+            (window.iter().map(|z| z.norm()).enumerate()).max_by(|a, b| a.1.total_cmp(&b.1))
         else {
             return residual;
         };
         if peak.is_nan() || peak <= 0.0 {
             return residual;
         }
-        let nu = self.refine(&residual, (first + offset as i64).rem_euclid(l) as usize);
+        let bin = (first + offset as i64).rem_euclid(self.fft_len as i64) as usize;
+        let nu = self.refine(&residual, bin);
         let amplitude = dtft(&residual, nu) / residual.len() as f64;
         for (t, z) in residual.iter_mut().enumerate() {
             let w = amplitude * Complex64::from_polar(1.0, std::f64::consts::TAU * nu * t as f64);
@@ -495,9 +525,6 @@ mod tests {
         }
     }
 
-    /// A strong off-grid "sheet" tone 2.4 raw bins before a weak "object" tone: its leakage
-    /// dominates the object's window (error over 50 % of the object's peak) until it is
-    /// removed, after which the window matches the object's own spectrum within 10 % (6.5 %).
     /// A floor's echo and a rim's 18 dB under it and 1.33 raw bins nearer, as an open cup
     /// returns them, with a stronger echo 45 raw bins away, outside the window: the floor goes,
     /// what is left of it stays under a quarter of the rim (the two tones' overlap pulls on the
@@ -541,6 +568,9 @@ mod tests {
         assert!(error < 0.25 * norm(&rim), "{error}");
     }
 
+    /// A strong off-grid "sheet" tone 2.4 raw bins before a weak "object" tone: its leakage
+    /// dominates the object's window (error over 50 % of the object's peak) until it is
+    /// removed, after which the window matches the object's own spectrum within 10 % (6.5 %).
     #[test]
     fn removes_a_strong_near_echo_and_keeps_the_object() {
         let (n, pad) = (512usize, 4usize);

@@ -17,7 +17,7 @@ use serde::Serialize;
 use super::baselines::{backprojection_points, interferometric_points};
 use super::components::{label_6, label_6_keyed, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
-use super::hidden::{HiddenSummary, hidden_voxels, keep_above, without_strongest_echoes};
+use super::hidden::{HiddenSummary, hidden_voxels, keep_above};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, nearest_candidate,
@@ -25,7 +25,7 @@ use super::isosurface::{
 };
 use super::lattice::{Lattice, NotRaster, detect};
 use super::mask::{MaskAttempt, MaskError, li_mask};
-use super::near_echo::{NearEchoCanceller, without_near_echoes};
+use super::near_echo::{NearEchoCanceller, without_near_echoes, without_strongest_echoes};
 use super::normals::{Candidates, normal_field};
 use super::rma::{RmaReport, rma_image};
 use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
@@ -630,22 +630,15 @@ fn mmnorm_fields(
     let mut mask = li(magnitude)?;
     // Surfaces hidden in a brighter one's range lobe join the mask under a key of their own.
     let hidden = match &imaged.hidden_magnitude {
-        Some(residual) => {
-            let residual_mask = li(residual);
-            let peak = (magnitude.par_iter().enumerate())
-                .filter(|&(v, _)| imaged.core.contains(grid, v))
-                .map(|(_, &m)| m)
-                .reduce(|| 0.0f32, f32::max);
-            residual_mask.ok().map(|r| {
-                let floor = peak * config.hidden_floor as f32;
-                let hidden = hidden_voxels(&r.mask, residual, &mask.mask, floor);
-                mask.mask
-                    .par_iter_mut()
-                    .zip(&hidden)
-                    .for_each(|(m, &h)| *m |= h);
-                hidden
-            })
-        }
+        Some(residual) => li(residual).ok().map(|r| {
+            let floor = mask.peak * config.hidden_floor as f32;
+            let hidden = hidden_voxels(&r.mask, residual, &mask.mask, floor);
+            mask.mask
+                .par_iter_mut()
+                .zip(&hidden)
+                .for_each(|(m, &h)| *m |= h);
+            hidden
+        }),
         None => None,
     };
     stages.lap("mask");
@@ -695,15 +688,11 @@ fn mmnorm_fields(
         .collect();
     // Components that lie in the margin alone are not the echo region's.
     let label = |min_voxels: usize| {
-        let labelled = match &hidden {
-            None => label_6(&with_normal, grid.dims, min_voxels),
-            Some(hidden) => {
-                let keys: Vec<u32> = (with_normal.par_iter().zip(hidden))
-                    .map(|(&m, &h)| u32::from(m) * (1 + u32::from(h)))
-                    .collect();
-                label_6_keyed(&keys, grid.dims, min_voxels)
-            }
-        };
+        // Hidden voxels (key 2) never join the others (key 1).
+        let keys: Vec<u32> = (with_normal.par_iter().enumerate())
+            .map(|(v, &m)| u32::from(m) * (1 + u32::from(hidden.as_ref().is_some_and(|h| h[v]))))
+            .collect();
+        let labelled = label_6_keyed(&keys, grid.dims, min_voxels);
         if imaged.core.is_whole(grid) {
             return labelled;
         }
