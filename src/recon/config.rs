@@ -298,8 +298,8 @@ pub struct ReconConfig {
     /// Look for surfaces hidden in a brighter surface's range lobe, such as an open cup's rim
     /// above its floor: each chirp's strongest echo is removed, the rest imaged again, and what
     /// its mask adds above the brighter surface becomes components of its own
-    /// (`recon/hidden.rs`). Off by default: it adds false components on steps and ledges
-    /// (`tests/recon_scenes.rs`). Costs a second image.
+    /// (`recon/hidden.rs`). Off by default: an added component can move the others' levels
+    /// through the antennas they share (`docs/bench/physics/notes.md`). Costs a second image.
     pub hidden_surfaces: bool,
     /// The residual image's voxels join only where its |S| is at least this fraction of the
     /// first image's peak (0.0316: −30 dB).

@@ -17,7 +17,7 @@ use serde::Serialize;
 use super::baselines::{backprojection_points, interferometric_points};
 use super::components::{label_6, label_6_keyed, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
-use super::hidden::{HiddenSummary, hidden_voxels, keep_above};
+use super::hidden::{HiddenSummary, RISE_RANGE_BINS, hidden_voxels, keep_above};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, nearest_candidate,
@@ -707,7 +707,7 @@ fn mmnorm_fields(
         used_fallback = true;
     }
     if let (Some(hidden), Some(residual)) = (&hidden, &imaged.hidden_magnitude) {
-        let rise_voxels = 0.5 * capture.plan.range_bin_m() / grid.voxel_m;
+        let rise_voxels = RISE_RANGE_BINS * capture.plan.range_bin_m() / grid.voxel_m;
         let (kept, report) = keep_above(
             labelled,
             hidden,
