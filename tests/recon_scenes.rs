@@ -353,6 +353,9 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
             ]
         };
         let ours = error_mm(&case.recon);
+        // The same capture reconstructed with other parameters.
+        let again =
+            |recon_config: ReconConfig| reconstruct(&case.capture, &recon_config, true).unwrap();
         println!(
             "{label}, {name}: {split:?}; top heights off by {:.1} and {:.1} mm",
             ours[0], ours[1]
@@ -368,15 +371,10 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
                 "{label}, {name}: tops off by {ours:?} mm"
             );
             // The paper's one level per component, once: the scene must need the split.
-            let one_level = reconstruct(
-                &case.capture,
-                &ReconConfig {
-                    split_transitions: false,
-                    ..config(Method::Mmnorm)
-                },
-                true,
-            )
-            .unwrap();
+            let one_level = again(ReconConfig {
+                split_transitions: false,
+                ..config(Method::Mmnorm)
+            });
             let paper = error_mm(&one_level);
             println!(
                 "{label}, {name}, one level per component: tops off by {:.1} and {:.1} mm",
@@ -397,15 +395,10 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
         }
         // The hidden-surface search must leave the step alone: the other top lies inside the
         // strongest echo's range bin, so what the fit leaves of it is no surface.
-        let hidden = reconstruct(
-            &case.capture,
-            &ReconConfig {
-                hidden_surfaces: true,
-                ..config(Method::Mmnorm)
-            },
-            true,
-        )
-        .unwrap();
+        let hidden = again(ReconConfig {
+            hidden_surfaces: true,
+            ..config(Method::Mmnorm)
+        });
         let found = hidden.summary.hidden.clone().expect("the search ran");
         let with_hidden = error_mm(&hidden);
         println!(
