@@ -449,10 +449,13 @@ impl NearEchoCanceller {
         // orthogonal and each amplitude is its own projection.
         let n = residual.len();
         let tau = |t: usize| centred_time(t, n);
-        let carrier = |t: usize| Complex64::from_polar(1.0, std::f64::consts::TAU * nu * t as f64);
+        // e^{j2πνt}, once per sample for the fit and both subtractions.
+        let carrier: Vec<Complex64> = (0..n)
+            .map(|t| Complex64::from_polar(1.0, std::f64::consts::TAU * nu * t as f64))
+            .collect();
         let (mut p0, mut p1, mut g1) = (Complex64::default(), Complex64::default(), 0f64);
         for (t, z) in residual.iter().enumerate() {
-            let w = wide(*z) * carrier(t).conj();
+            let w = wide(*z) * carrier[t].conj();
             p0 += w;
             p1 += w * tau(t);
             g1 += tau(t) * tau(t);
@@ -471,7 +474,7 @@ impl NearEchoCanceller {
                 *z -= Complex32::new(w.re as f32, w.im as f32);
             }
         };
-        subtract(&mut residual, &|t| a0 * carrier(t));
+        subtract(&mut residual, &|t| a0 * carrier[t]);
         // The residual's DTFT at SPREAD_OFFSETS raw bins from the echo, where a spread echo
         // leaves its lobes and a separate echo farther away cannot dilute the comparison. The
         // line's own DTFT there is a1·G(d), G(d) = Σ τ·e^{−j2πdt/N}, whatever ν.
@@ -489,7 +492,7 @@ impl NearEchoCanceller {
             line_left += (z - a1 * g).norm_sqr();
         }
         if line_left < SPREAD_SHARE * tone_left {
-            subtract(&mut residual, &|t| a1 * tau(t) * carrier(t));
+            subtract(&mut residual, &|t| a1 * tau(t) * carrier[t]);
         }
         residual
     }
