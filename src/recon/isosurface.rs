@@ -179,6 +179,45 @@ pub fn coordinate_descent(
     (choice, sweeps)
 }
 
+/// [`coordinate_descent`] in two stages: the components not `hidden` first, under
+/// `first_cost` of their (component, candidate) pairs alone; then the hidden ones with those
+/// fixed, under `all_cost` of every pair. Returns the choice and the sweeps of both stages.
+pub fn staged_descent(
+    counts: &[usize],
+    hidden: &[bool],
+    first_cost: impl Fn(&[(usize, usize)]) -> f64,
+    all_cost: impl Fn(&[(usize, usize)]) -> f64,
+    max_sweeps: usize,
+) -> (Vec<usize>, usize) {
+    let is_hidden = |n: usize| hidden.get(n).copied().unwrap_or(false);
+    let (first, later): (Vec<usize>, Vec<usize>) = (0..counts.len()).partition(|&n| !is_hidden(n));
+    let pairs = |of: &[usize], x: &[usize]| -> Vec<(usize, usize)> {
+        of.iter().copied().zip(x.iter().copied()).collect()
+    };
+    let counts_of = |of: &[usize]| -> Vec<usize> { of.iter().map(|&n| counts[n]).collect() };
+    let (first_choice, first_sweeps) = coordinate_descent(
+        &counts_of(&first),
+        |i, c| first_cost(&[(first[i], c)]),
+        |x| first_cost(&pairs(&first, x)),
+        max_sweeps,
+    );
+    let fixed = pairs(&first, &first_choice);
+    let with_fixed = |more: Vec<(usize, usize)>| {
+        all_cost(&fixed.iter().copied().chain(more).collect::<Vec<_>>())
+    };
+    let (later_choice, later_sweeps) = coordinate_descent(
+        &counts_of(&later),
+        |i, c| with_fixed(vec![(later[i], c)]),
+        |x| with_fixed(pairs(&later, x)),
+        max_sweeps,
+    );
+    let mut choice = vec![0; counts.len()];
+    for (n, c) in fixed.iter().copied().chain(pairs(&later, &later_choice)) {
+        choice[n] = c;
+    }
+    (choice, first_sweeps + later_sweeps)
+}
+
 /// Exhaustive search over the Cartesian product of the candidates (for tests and small cases).
 pub fn product_search(counts: &[usize], cost: impl Fn(&[usize]) -> f64) -> Vec<usize> {
     let mut index = vec![0usize; counts.len()];
@@ -370,11 +409,13 @@ fn fit_gains(magnitudes: &[&[f32]], measured: &[f32]) -> Vec<f32> {
 }
 
 /// Picks the antenna subset and simulates every candidate of every component (`fields`, one per
-/// component, NaN outside it; `candidates[n]` its constants).
+/// component, NaN outside it; `candidates[n]` its constants; `hidden[n]` whether it was found
+/// under a brighter surface's range lobe, empty when none was).
 pub fn simulate_candidates(
     capture: &Capture,
     fields: &[SampledField],
     candidates: &[Vec<f64>],
+    hidden: &[bool],
     opts: &Optimisation,
     quiet: bool,
 ) -> Result<CandidateSpectra, OptimisationError> {
@@ -412,6 +453,7 @@ pub fn simulate_candidates(
         strong_fraction,
         qualifying,
         per_component,
+        first,
     } = choose(
         &peaks,
         strongest,
@@ -419,6 +461,7 @@ pub fn simulate_candidates(
             capture,
             fields,
             candidates,
+            hidden,
             opts,
         },
     );
@@ -494,8 +537,18 @@ pub fn simulate_candidates(
     } else {
         Vec::new()
     };
+    // The indices into `chosen` of the antennas the components found first drew.
+    let first = first.map(|first| {
+        (0..subset)
+            .filter(|&j| first.binary_search(&chosen[j]).is_ok())
+            .collect()
+    });
     Ok(CandidateSpectra {
         seed: opts.seed,
+        first,
+        hidden: (0..fields.len())
+            .map(|n| hidden.get(n).copied().unwrap_or(false))
+            .collect(),
         strong_fraction,
         qualifying_antennas: qualifying,
         per_component,
@@ -513,6 +566,11 @@ pub fn simulate_candidates(
 /// ones: everything the cost of any joint choice needs.
 pub struct CandidateSpectra {
     seed: u64,
+    /// When hidden components drew antennas of their own: the indices into `antennas` of those
+    /// the other components drew ([`Subset::first`]).
+    first: Option<Vec<usize>>,
+    /// Per component: found under a brighter surface's range lobe.
+    hidden: Vec<bool>,
     strong_fraction: f64,
     qualifying_antennas: usize,
     per_component: Option<PerComponentShares>,
@@ -563,13 +621,16 @@ impl CandidateSpectra {
 
     /// Antenna `j`'s term of [`Self::cost`].
     fn antenna_cost(&self, choice: &[usize], j: usize) -> f64 {
+        let parts: Vec<(usize, usize)> = choice.iter().copied().enumerate().collect();
+        self.parts_cost(&parts, j)
+    }
+
+    /// Antenna `j`'s term of Eq. 12 for the components `parts` (component, candidate) alone.
+    /// One part keeps its gain of 1: the cost compares L2-normalised spectra.
+    fn parts_cost(&self, parts: &[(usize, usize)], j: usize) -> f64 {
         let w = &self.windows[j];
-        let at: Vec<usize> = choice
-            .iter()
-            .enumerate()
-            .map(|(n, &c)| self.index(n, c, j))
-            .collect();
-        let gains = if self.magnitudes.is_empty() {
+        let at: Vec<usize> = parts.iter().map(|&(n, c)| self.index(n, c, j)).collect();
+        let gains = if self.magnitudes.is_empty() || at.len() < 2 {
             vec![1.0; at.len()]
         } else {
             let parts: Vec<&[f32]> = at.iter().map(|&i| self.magnitudes[i].as_slice()).collect();
@@ -584,6 +645,40 @@ impl CandidateSpectra {
         w.cost(&sum)
     }
 
+    /// Eq. 12 for the components `parts` (component, candidate) alone, summed over the
+    /// antennas `among` (indices into the antennas; all of them when `None`).
+    fn parts_cost_among(&self, parts: &[(usize, usize)], among: Option<&[usize]>) -> f64 {
+        match among {
+            Some(among) => among.iter().map(|&j| self.parts_cost(parts, j)).sum(),
+            None => (0..self.windows.len())
+                .map(|j| self.parts_cost(parts, j))
+                .sum(),
+        }
+    }
+
+    /// The joint choice, by [`coordinate_descent`], and the sweeps it took. When hidden
+    /// components drew antennas of their own, the others are chosen first as if there were
+    /// none (on their own antennas, without the hidden components' echoes), and the hidden
+    /// ones then with the others fixed, on every antenna.
+    fn descend(&self, max_sweeps: usize) -> (Vec<usize>, usize) {
+        let counts = self.counts();
+        match &self.first {
+            None => coordinate_descent(
+                &counts,
+                |n, c| self.alone(n, c),
+                |x| self.cost(x),
+                max_sweeps,
+            ),
+            Some(first) => staged_descent(
+                &counts,
+                &self.hidden,
+                |parts| self.parts_cost_among(parts, Some(first)),
+                |parts| self.parts_cost_among(parts, None),
+                max_sweeps,
+            ),
+        }
+    }
+
     /// Eq. 12 for component `n` at candidate `c` with no other component.
     pub fn alone(&self, n: usize, c: usize) -> f64 {
         self.windows
@@ -594,7 +689,9 @@ impl CandidateSpectra {
     }
 }
 
-/// Runs the optimisation for `fields` (one per component, NaN outside it) with `candidates[n]`.
+/// Runs the optimisation for `fields` (one per component, NaN outside it) with `candidates[n]`;
+/// `hidden[n]` says whether component `n` was found under a brighter surface's range lobe
+/// (empty: none was), which sets how it draws its antennas (`subset.rs`).
 ///
 /// With `priors` (one level per component, the |S|-weighted one), a component leaves the
 /// candidate nearest its prior only on evidence: a [`paired_t`] of at least
@@ -603,18 +700,14 @@ pub fn optimise(
     capture: &Capture,
     fields: &[SampledField],
     candidates: &[Vec<f64>],
+    hidden: &[bool],
     priors: Option<&[f64]>,
     opts: &Optimisation,
     quiet: bool,
 ) -> Result<OptimisationReport, OptimisationError> {
-    let problem = simulate_candidates(capture, fields, candidates, opts, quiet)?;
+    let problem = simulate_candidates(capture, fields, candidates, hidden, opts, quiet)?;
     let counts = problem.counts();
-    let (mut choice, sweeps) = coordinate_descent(
-        &counts,
-        |n, c| problem.alone(n, c),
-        |x| problem.cost(x),
-        opts.max_sweeps,
-    );
+    let (mut choice, sweeps) = problem.descend(opts.max_sweeps);
     let mut evidence_t = vec![None; counts.len()];
     if let Some(priors) = priors {
         for n in 0..counts.len() {
@@ -1032,12 +1125,13 @@ mod tests {
             ..Optimisation::default()
         };
         let (fields, levels) = ([field], [levels]);
-        let report = optimise(&capture, &fields, &levels, None, &paper, true).unwrap();
+        let report = optimise(&capture, &fields, &levels, &[], None, &paper, true).unwrap();
         println!("unwindowed: chosen {}", report.components[0].chosen);
         let report = optimise(
             &capture,
             &fields,
             &levels,
+            &[],
             None,
             &Optimisation::default(),
             true,
@@ -1065,7 +1159,7 @@ mod tests {
             near_echo_tones: 0,
             ..Optimisation::default()
         };
-        let report = optimise(&capture, &fields, &levels, None, &ignored, true).unwrap();
+        let report = optimise(&capture, &fields, &levels, &[], None, &ignored, true).unwrap();
         let unhandled = report.components[0].chosen;
         println!("mirror left in: chosen {unhandled}");
         assert_ne!(unhandled, truth);
@@ -1073,6 +1167,7 @@ mod tests {
             &capture,
             &fields,
             &levels,
+            &[],
             None,
             &Optimisation::default(),
             true,
@@ -1146,6 +1241,43 @@ mod tests {
         assert_eq!(paired_t(&[1.0, 1.0], &[1.0, 1.0]), 0.0);
         assert_eq!(paired_t(&[2.0, 2.0], &[1.0, 1.0]), f64::INFINITY);
         assert!(paired_t(&[1.0, 1.5], &[2.0, 2.0]) < 0.0);
+    }
+
+    /// A hidden component that pulls the others under a joint descent leaves them where they
+    /// are without it, and is itself placed best with them fixed.
+    #[test]
+    fn staged_descent_places_the_hidden_components_after_the_others() {
+        let targets = [2.0, 5.0, 1.0];
+        // Under the joint cost the hidden component (2) drags component 0 towards its own
+        // index; the first-stage cost never sees it.
+        let cost = |parts: &[(usize, usize)], coupled: bool| -> f64 {
+            let at = |n: usize| parts.iter().find(|p| p.0 == n).map(|p| p.1 as f64);
+            let mut s: f64 = parts
+                .iter()
+                .map(|&(n, c)| (c as f64 - targets[n]).powi(2))
+                .sum();
+            if let (true, Some(a), Some(h)) = (coupled, at(0), at(2)) {
+                s += 3.0 * (a - h).powi(2);
+            }
+            s
+        };
+        let counts = [8, 8, 8];
+        let joint = |x: &[usize]| cost(&x.iter().copied().enumerate().collect::<Vec<_>>(), true);
+        let (together, _) = coordinate_descent(&counts, |n, c| cost(&[(n, c)], true), joint, 8);
+        assert_ne!(together[0], 2, "the coupling must move component 0 jointly");
+        let (staged, _) = staged_descent(
+            &counts,
+            &[false, false, true],
+            |parts| cost(parts, false),
+            |parts| cost(parts, true),
+            8,
+        );
+        assert_eq!(staged[..2], [2, 5]);
+        // With 0 at 2: (h − 1)² + 3 (2 − h)² is least at h = 2 (1 + 0) against 1 (0 + 3).
+        assert_eq!(staged[2], 2);
+        // No hidden component: the plain descent.
+        let plain = staged_descent(&counts, &[], |p| cost(p, true), |p| cost(p, true), 8);
+        assert_eq!(plain.0, together);
     }
 
     /// Coupled costs over 2–3 components: coordinate descent from the separate optima reaches the

@@ -316,17 +316,22 @@ pub fn image_volume(
         let canceller = NearEchoCanceller::of_cost(capture.plan.samples_per_chirp, opts);
         let residual =
             without_strongest_echoes(capture, lo, hi, &canceller, opts.cost_pad_factor as i64);
-        let image = form_image(
+        // The core alone is imaged (one transform, not the whole grid and the core again):
+        // the margin stays zero, so a hidden component never reaches into it.
+        let inner_grid = core.grid(&grid);
+        let inner = form_image(
             &residual,
-            &grid,
-            &core,
+            &inner_grid,
+            &Core::whole(&inner_grid),
             &lattice,
             config.pad_factor,
             false,
             true,
         )
         .image;
-        let magnitude: Vec<f32> = image.iter().map(|s| s.norm()).collect();
+        let mut magnitude = vec![0.0f32; grid.dims.iter().product()];
+        let inner: Vec<f32> = inner.iter().map(|s| s.norm()).collect();
+        core.paste(&grid, &mut magnitude, &inner);
         stages.lap("hidden image");
         magnitude
     });
@@ -594,6 +599,8 @@ type Points = (Vec<[f64; 3]>, Option<Vec<[f64; 3]>>, Vec<u32>);
 struct Fields {
     normals: Vec<[f32; 3]>,
     sizes: Vec<usize>,
+    /// Per component: found under a brighter surface's range lobe (empty when not searched).
+    hidden: Vec<bool>,
     fields: Vec<SampledField>,
     ranges: Vec<(f64, f64)>,
     candidate_sets: Vec<Vec<f64>>,
@@ -758,6 +765,19 @@ fn mmnorm_fields(
     stages.lap("components");
 
     let count = labelled.sizes.len();
+    // Hidden voxels never share a component with the others, so one voxel tells.
+    let hidden_components: Vec<bool> = match &hidden {
+        Some(hidden) => {
+            let mut of = vec![false; count];
+            for (v, &l) in labelled.labels.iter().enumerate() {
+                if l != 0 && hidden[v] {
+                    of[l as usize - 1] = true;
+                }
+            }
+            of
+        }
+        None => Vec::new(),
+    };
     let progress = Progress::new("rsdf", count as u64, quiet);
     let fields: Vec<SampledField> = (1..=count as u32)
         .map(|label| {
@@ -796,6 +816,7 @@ fn mmnorm_fields(
     Ok(Fields {
         normals,
         sizes: labelled.sizes,
+        hidden: hidden_components,
         fields,
         ranges,
         candidate_sets,
@@ -819,6 +840,7 @@ fn mmnorm_points(
     let Fields {
         normals,
         sizes,
+        hidden,
         fields,
         ranges,
         candidate_sets,
@@ -852,7 +874,7 @@ fn mmnorm_points(
                 candidate_sets.clone()
             };
             let priors = (o.evidence_t > 0.0).then_some(priors.as_slice());
-            let report = optimise(capture, fields, &banded, priors, o, quiet)?;
+            let report = optimise(capture, fields, &banded, hidden, priors, o, quiet)?;
             let c = report.components.iter().map(|c| c.constant).collect();
             summary.optimisation = Some(report);
             c

@@ -28,6 +28,13 @@
 //!   any antenna draws an equal share, and the cost still sums every component's chirp at
 //!   every antenna drawn.
 //!
+//!   **Hidden components** (`hidden_surfaces`, `recon::hidden`) do not change the others'
+//!   draws: those share the antennas as if no hidden one were there (the authors' draw when
+//!   fewer than two remain), and each hidden component adds a share of its own, one of all the
+//!   components, among the antennas it dominates against all of them. Drawn as one more
+//!   component, a rim found 2 cm beside a cylinder took half of a tilted plate's antennas and
+//!   moved the plate's level 9 mm (a 30×30 cm λ/4 raster under point scatterers).
+//!
 //!   Dominance matters: a weak component's echo moves the L2-normalised spectrum of an antenna
 //!   that a stronger one dominates too little for its level to show in the cost. An incoherent
 //!   measure (the hits' summed weight, without phases) was tried first and does not separate
@@ -87,6 +94,9 @@ pub struct SubsetInputs<'a> {
     /// One per component, NaN outside it.
     pub fields: &'a [SampledField],
     pub candidates: &'a [Vec<f64>],
+    /// One per component: whether it was found under a brighter surface's range lobe
+    /// (`recon::hidden`). Missing entries count as not.
+    pub hidden: &'a [bool],
     /// The rule, the fraction, the count and the seed, and the simulation's ray step and window.
     pub opts: &'a Optimisation,
 }
@@ -102,6 +112,9 @@ pub struct Subset {
     pub qualifying: usize,
     /// With a share per component: the pool and the antennas each component qualified.
     pub per_component: Option<PerComponentShares>,
+    /// When hidden components drew shares of their own: the antennas the others drew, those
+    /// they would have had without the search (capture indices, ascending).
+    pub first: Option<Vec<usize>>,
 }
 
 /// The pool of [`SubsetRule::PerComponent`], for summary.json.
@@ -143,67 +156,145 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
     let (qualifying, strong_fraction) =
         strong_returns(peaks, strongest, inputs.opts.strong_fraction);
     let count = qualifying.len();
-    let authors = |qualifying: Vec<usize>| Subset {
-        antennas: draw(qualifying, inputs.opts.antennas, Rng::new(inputs.opts.seed)),
+    let opts = inputs.opts;
+    let measured = draw(qualifying.clone(), opts.antennas, Rng::new(opts.seed));
+    let authors = |antennas: Vec<usize>| Subset {
+        antennas,
         strong_fraction,
         qualifying: count,
         per_component: None,
+        first: None,
     };
-    if inputs.opts.subset == SubsetRule::Strongest || inputs.fields.len() < 2 {
-        return authors(qualifying);
+    let is_hidden = |n: usize| inputs.hidden.get(n).copied().unwrap_or(false);
+    let hidden = (0..inputs.fields.len()).filter(|&n| is_hidden(n)).count();
+    if opts.subset == SubsetRule::Strongest || (hidden == 0 && inputs.fields.len() < 2) {
+        return authors(measured);
     }
     let mut pool = draw(
         (0..peaks.len()).collect(),
         POOL_ANTENNAS,
-        Rng::for_stream(inputs.opts.seed, POOL_STREAM, 0),
+        Rng::for_stream(opts.seed, POOL_STREAM, 0),
     );
     pool.extend(draw(
         qualifying.clone(),
         POOL_ANTENNAS,
-        Rng::for_stream(inputs.opts.seed, POOL_STREAM, 1),
+        Rng::for_stream(opts.seed, POOL_STREAM, 1),
     ));
     pool.sort_unstable();
     pool.dedup();
     let energy = echo_energies(inputs, &pool);
-    let total: Vec<f32> = (0..pool.len())
-        .map(|i| energy.iter().map(|e| e[i]).sum())
-        .collect();
-    let seen = energy.iter().filter(|e| e.iter().any(|&v| v > 0.0)).count();
-    if seen == 0 {
-        return authors(qualifying);
-    }
-    let (mut qualifying_own, mut drawn, mut antennas) = (Vec::new(), Vec::new(), Vec::new());
-    // Components served so far: the first `antennas % seen` get one antenna more.
-    let mut served = 0;
-    for (n, e) in energy.iter().enumerate() {
-        if !e.iter().any(|&v| v > 0.0) {
-            qualifying_own.push(0);
-            drawn.push(0);
-            continue;
-        }
-        let share = inputs.opts.antennas / seen + usize::from(served < inputs.opts.antennas % seen);
-        served += 1;
-        let picked = qualify(e, &total, share, inputs.opts.strong_fraction);
-        qualifying_own.push(picked.len());
-        let own = draw(
-            picked.into_iter().map(|i| pool[i]).collect(),
-            share,
-            Rng::for_stream(inputs.opts.seed, SHARE_STREAM, n as u64),
-        );
-        drawn.push(own.len());
-        antennas.extend(own);
-    }
-    antennas.sort_unstable();
-    antennas.dedup();
+    let Some(shares) = draw_shares(&energy, inputs.hidden, &pool, (&measured, count), opts) else {
+        return authors(measured);
+    };
+    let union = |of: &dyn Fn(usize) -> bool| {
+        let mut antennas: Vec<usize> = (shares.own.iter().enumerate())
+            .filter(|&(n, _)| of(n))
+            .flat_map(|(_, own)| own.iter().copied())
+            .collect();
+        antennas.sort_unstable();
+        antennas.dedup();
+        antennas
+    };
+    let antennas = union(&|_| true);
+    let hidden_drew = (0..shares.own.len()).any(|n| is_hidden(n) && !shares.own[n].is_empty());
+    let first = hidden_drew.then(|| union(&|n| !is_hidden(n)));
     Subset {
         antennas,
         strong_fraction,
         qualifying: count,
         per_component: Some(PerComponentShares {
             pool: pool.len(),
-            qualifying: qualifying_own,
-            drawn,
+            qualifying: shares.qualifying,
+            drawn: shares.own.iter().map(Vec::len).collect(),
         }),
+        first,
+    }
+}
+
+/// What each component drew.
+struct Drawn {
+    /// Per component, the capture indices it drew.
+    own: Vec<Vec<usize>>,
+    /// Per component, how many antennas qualified for it.
+    qualifying: Vec<usize>,
+}
+
+/// Each component's antennas from its echo `energy` at the `pool` antennas
+/// (`[component][pool index]`); `None` when no component's echo reaches any.
+///
+/// The components not `hidden` share the antennas as if no hidden one were there: an equal
+/// share each among those they dominate against each other, or, when there are fewer than two
+/// of them, the authors' draw (`measured`: the antennas drawn and how many qualified). A hidden
+/// component then draws a share of its own, as one of all the components, among the antennas it
+/// dominates against all of them.
+fn draw_shares(
+    energy: &[Vec<f32>],
+    hidden: &[bool],
+    pool: &[usize],
+    measured: (&[usize], usize),
+    opts: &Optimisation,
+) -> Option<Drawn> {
+    let count = energy.len();
+    let is_hidden = |n: usize| hidden.get(n).copied().unwrap_or(false);
+    let reaches = |n: usize| energy[n].iter().any(|&v| v > 0.0);
+    let (first, hidden): (Vec<usize>, Vec<usize>) = (0..count).partition(|&n| !is_hidden(n));
+    let summed = |over: &[usize]| -> Vec<f32> {
+        (0..pool.len())
+            .map(|i| over.iter().map(|&n| energy[n][i]).sum())
+            .collect()
+    };
+    let seen_first = first.iter().filter(|&&n| reaches(n)).count();
+    let seen = seen_first + hidden.iter().filter(|&&n| reaches(n)).count();
+    if seen == 0 {
+        return None;
+    }
+    let mut drawn = Drawn {
+        own: vec![Vec::new(); count],
+        qualifying: vec![0; count],
+    };
+    // Component n's qualifying antennas against `total`, and `share` of them drawn.
+    let take = |n: usize, share: usize, total: &[f32]| {
+        let picked = qualify(&energy[n], total, share, opts.strong_fraction);
+        let qualified = picked.len();
+        let own = draw(
+            picked.into_iter().map(|i| pool[i]).collect(),
+            share,
+            Rng::for_stream(opts.seed, SHARE_STREAM, n as u64),
+        );
+        (own, qualified)
+    };
+    if first.len() < 2 || seen_first == 0 {
+        for &n in &first {
+            (drawn.own[n], drawn.qualifying[n]) = (measured.0.to_vec(), measured.1);
+        }
+    } else {
+        let total = summed(&first);
+        let shares = Shares::new(opts.antennas, seen_first);
+        for (k, n) in first.iter().copied().filter(|&n| reaches(n)).enumerate() {
+            (drawn.own[n], drawn.qualifying[n]) = take(n, shares.of(k), &total);
+        }
+    }
+    let total = summed(&(0..count).collect::<Vec<_>>());
+    let shares = Shares::new(opts.antennas, seen);
+    for (k, n) in hidden.iter().copied().filter(|&n| reaches(n)).enumerate() {
+        (drawn.own[n], drawn.qualifying[n]) = take(n, shares.of(seen_first + k), &total);
+    }
+    Some(drawn)
+}
+
+/// `antennas` split into `parts` equal shares; the first `antennas % parts` get one more.
+struct Shares {
+    antennas: usize,
+    parts: usize,
+}
+
+impl Shares {
+    fn new(antennas: usize, parts: usize) -> Self {
+        Self { antennas, parts }
+    }
+
+    fn of(&self, k: usize) -> usize {
+        self.antennas / self.parts + usize::from(k < self.antennas % self.parts)
     }
 }
 
@@ -293,6 +384,43 @@ mod tests {
         assert_eq!(qualify(&own, &total, 3, 0.5), vec![0, 1, 3]);
         // A component that reaches no antenna qualifies none.
         assert!(qualify(&[0.0; 3], &[1.0; 3], 1, 0.5).is_empty());
+    }
+
+    #[test]
+    fn a_hidden_component_leaves_the_others_draws_alone() {
+        let opts = Optimisation {
+            antennas: 4,
+            ..Optimisation::default()
+        };
+        let pool = [10, 11, 12, 13, 14, 15];
+        let plate = vec![1.0, 0.9, 0.8, 0.7, 0.0, 0.0];
+        let can = vec![0.0, 0.0, 0.0, 0.1, 1.0, 0.9];
+        // The hidden one outshines the plate at its first two antennas.
+        let rim = vec![5.0, 4.0, 0.0, 0.0, 0.0, 0.0];
+        let measured: (&[usize], usize) = (&[12, 13], 2);
+        let alone = [plate.clone(), can.clone()];
+        let alone = draw_shares(&alone, &[], &pool, measured, &opts);
+        let alone = alone.expect("both reach");
+        let with = [plate.clone(), can.clone(), rim.clone()];
+        let with = draw_shares(&with, &[false, false, true], &pool, measured, &opts);
+        let with = with.expect("all reach");
+        assert_eq!(with.own[..2], alone.own[..]);
+        assert_eq!(with.qualifying[..2], alone.qualifying[..]);
+        // Its own share is one of three: 4 / 3 rounded down for the last.
+        assert_eq!((with.own[2].len(), with.qualifying[2]), (1, 2));
+        assert!(with.own[2].iter().all(|a| [10, 11].contains(a)));
+        // Drawn as a component like the others, it takes two of the plate's four antennas.
+        let joint = [plate.clone(), can, rim.clone()];
+        let joint = draw_shares(&joint, &[], &pool, measured, &opts).expect("all reach");
+        assert_eq!((alone.qualifying[0], joint.qualifying[0]), (4, 2));
+        assert_eq!(joint.own[0], [12, 13]);
+        // Beside one component, that component keeps the measured (authors') draw.
+        let one = draw_shares(&[plate, rim], &[false, true], &pool, measured, &opts);
+        let one = one.expect("both reach");
+        assert_eq!((one.own[0].as_slice(), one.qualifying[0]), measured);
+        assert_eq!(one.own[1].len(), 2);
+        // When no echo reaches any antenna, the caller falls back to the authors' draw.
+        assert!(draw_shares(&[vec![0.0; 6]], &[true], &pool, measured, &opts).is_none());
     }
 
     #[test]
