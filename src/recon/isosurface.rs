@@ -56,7 +56,9 @@
 //!   component's best given the others until nothing changes. Its cost is a few sweeps ×
 //!   Σ candidates instead of the product of the candidate counts; tests check that it finds the
 //!   product search's optimum. The authors' "highest acceptable peak" rule is not used: the
-//!   paper selects the minimum.
+//!   paper selects the minimum. Components found under a brighter surface's range lobe
+//!   (`hidden_surfaces`) are chosen after the others ([`staged_descent`]): those first, on
+//!   their own antennas and without the hidden echoes, then the hidden ones with them fixed.
 //! - **Guards (not in the paper)** against levels the single-bounce simulation misplaces (a
 //!   rim's edge echoes, concave surfaces), each off with its setting:
 //!   - with several components, each antenna fits a gain ≥ 0 per component (`fit_gains`,

@@ -31,9 +31,10 @@
 //!   **Hidden components** (`hidden_surfaces`, `recon::hidden`) do not change the others'
 //!   draws: those share the antennas as if no hidden one were there (the authors' draw when
 //!   fewer than two remain), and each hidden component adds a share of its own, one of all the
-//!   components, among the antennas it dominates against all of them. Drawn as one more
-//!   component, a rim found 2 cm beside a cylinder took half of a tilted plate's antennas and
-//!   moved the plate's level 9 mm (a 30×30 cm λ/4 raster under point scatterers).
+//!   components, among the antennas it dominates against all of them; its level is chosen
+//!   after theirs (`isosurface::staged_descent`). Drawn as one more component, a rim found
+//!   2 cm beside a cylinder took half of a tilted plate's antennas and moved the plate's level
+//!   9 mm (a 30×30 cm λ/4 raster under point scatterers).
 //!
 //!   Dominance matters: a weak component's echo moves the L2-normalised spectrum of an antenna
 //!   that a stronger one dominates too little for its level to show in the cost. An incoherent
