@@ -76,7 +76,7 @@ use serde::Serialize;
 
 use super::config::Optimisation;
 use super::near_echo::{NearEchoCanceller, NearEchoSubspace, box_window};
-use super::subset::{PerComponentShares, Subset, SubsetInputs, choose};
+use super::subset::{PerComponentShares, Subset, SubsetInputs, choose, is_hidden};
 use super::trace::{RaySamples, SampledField};
 use crate::capture::Capture;
 use crate::geometry::vec3::{add, dot, scale, sub};
@@ -191,8 +191,8 @@ pub fn staged_descent(
     all_cost: impl Fn(&[(usize, usize)]) -> f64,
     max_sweeps: usize,
 ) -> (Vec<usize>, usize) {
-    let is_hidden = |n: usize| hidden.get(n).copied().unwrap_or(false);
-    let (first, later): (Vec<usize>, Vec<usize>) = (0..counts.len()).partition(|&n| !is_hidden(n));
+    let (first, later): (Vec<usize>, Vec<usize>) =
+        (0..counts.len()).partition(|&n| !is_hidden(hidden, n));
     let pairs = |of: &[usize], x: &[usize]| -> Vec<(usize, usize)> {
         of.iter().copied().zip(x.iter().copied()).collect()
     };
@@ -548,9 +548,7 @@ pub fn simulate_candidates(
     Ok(CandidateSpectra {
         seed: opts.seed,
         first,
-        hidden: (0..fields.len())
-            .map(|n| hidden.get(n).copied().unwrap_or(false))
-            .collect(),
+        hidden: (0..fields.len()).map(|n| is_hidden(hidden, n)).collect(),
         strong_fraction,
         qualifying_antennas: qualifying,
         per_component,
@@ -599,10 +597,6 @@ impl CandidateSpectra {
     fn index(&self, n: usize, c: usize, j: usize) -> usize {
         let before: usize = self.candidates[..n].iter().map(Vec::len).sum();
         (before + c) * self.antennas.len() + j
-    }
-
-    fn spectrum(&self, n: usize, c: usize, j: usize) -> &[Complex32] {
-        &self.spectra[self.index(n, c, j)]
     }
 
     /// Eq. 12 for the joint choice `choice[n]`, per antenna: [`Self::cost`]'s terms.
@@ -683,11 +677,7 @@ impl CandidateSpectra {
 
     /// Eq. 12 for component `n` at candidate `c` with no other component.
     pub fn alone(&self, n: usize, c: usize) -> f64 {
-        self.windows
-            .iter()
-            .enumerate()
-            .map(|(j, w)| w.cost(self.spectrum(n, c, j)))
-            .sum()
+        self.parts_cost_among(&[(n, c)], None)
     }
 }
 

@@ -166,9 +166,9 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         per_component: None,
         first: None,
     };
-    let is_hidden = |n: usize| inputs.hidden.get(n).copied().unwrap_or(false);
-    let hidden = (0..inputs.fields.len()).filter(|&n| is_hidden(n)).count();
-    if opts.subset == SubsetRule::Strongest || (hidden == 0 && inputs.fields.len() < 2) {
+    let is_hidden = |n: usize| is_hidden(inputs.hidden, n);
+    let any_hidden = (0..inputs.fields.len()).any(is_hidden);
+    if opts.subset == SubsetRule::Strongest || (!any_hidden && inputs.fields.len() < 2) {
         return authors(measured);
     }
     let mut pool = draw(
@@ -236,7 +236,7 @@ fn draw_shares(
     opts: &Optimisation,
 ) -> Option<Drawn> {
     let count = energy.len();
-    let is_hidden = |n: usize| hidden.get(n).copied().unwrap_or(false);
+    let is_hidden = |n: usize| is_hidden(hidden, n);
     let reaches = |n: usize| energy[n].iter().any(|&v| v > 0.0);
     let (first, hidden): (Vec<usize>, Vec<usize>) = (0..count).partition(|&n| !is_hidden(n));
     let summed = |over: &[usize]| -> Vec<f32> {
@@ -270,33 +270,28 @@ fn draw_shares(
         }
     } else {
         let total = summed(&first);
-        let shares = Shares::new(opts.antennas, seen_first);
         for (k, n) in first.iter().copied().filter(|&n| reaches(n)).enumerate() {
-            (drawn.own[n], drawn.qualifying[n]) = take(n, shares.of(k), &total);
+            (drawn.own[n], drawn.qualifying[n]) =
+                take(n, share(opts.antennas, seen_first, k), &total);
         }
     }
     let total = summed(&(0..count).collect::<Vec<_>>());
-    let shares = Shares::new(opts.antennas, seen);
     for (k, n) in hidden.iter().copied().filter(|&n| reaches(n)).enumerate() {
-        (drawn.own[n], drawn.qualifying[n]) = take(n, shares.of(seen_first + k), &total);
+        let share = share(opts.antennas, seen, seen_first + k);
+        (drawn.own[n], drawn.qualifying[n]) = take(n, share, &total);
     }
     Some(drawn)
 }
 
-/// `antennas` split into `parts` equal shares; the first `antennas % parts` get one more.
-struct Shares {
-    antennas: usize,
-    parts: usize,
+/// Share `k` of `antennas` split into `parts` equal shares; the first `antennas % parts` get
+/// one more.
+fn share(antennas: usize, parts: usize, k: usize) -> usize {
+    antennas / parts + usize::from(k < antennas % parts)
 }
 
-impl Shares {
-    fn new(antennas: usize, parts: usize) -> Self {
-        Self { antennas, parts }
-    }
-
-    fn of(&self, k: usize) -> usize {
-        self.antennas / self.parts + usize::from(k < self.antennas % self.parts)
-    }
+/// Whether component `n` is flagged in `hidden` (one flag per component; missing ones are not).
+pub fn is_hidden(hidden: &[bool], n: usize) -> bool {
+    hidden.get(n).copied().unwrap_or(false)
 }
 
 /// The pool indices that one component qualifies: those it dominates (its `energy` at least a
