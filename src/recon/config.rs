@@ -298,8 +298,8 @@ pub struct ReconConfig {
     /// Look for surfaces hidden in a brighter surface's range lobe, such as an open cup's rim
     /// above its floor: each chirp's strongest echo is removed, the rest imaged again, and what
     /// its mask adds above the brighter surface becomes components of its own
-    /// (`recon/hidden.rs`). Off by default: an added component can move the others' levels
-    /// through the antennas they share (`docs/bench/physics/notes.md`). Costs a second image.
+    /// (`recon/hidden.rs`). On by default; it costs a second image of the volume's core, and
+    /// false keeps the paper's components only.
     pub hidden_surfaces: bool,
     /// The residual image's voxels join only where its |S| is at least this fraction of the
     /// first image's peak (0.0316: −30 dB).
@@ -370,7 +370,7 @@ impl Default for ReconConfig {
             fallback_component_m3: 4.5e-6,
             split_transitions: true,
             split_jump_m: 0.004,
-            hidden_surfaces: false,
+            hidden_surfaces: true,
             hidden_floor: 0.0316,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
