@@ -93,6 +93,19 @@ pub struct HiddenSummary {
     pub kept: usize,
 }
 
+/// Per component of `labelled`: whether it holds a voxel flagged in `hidden`. Hidden voxels
+/// never share a component with the others (they join the mask under a key of their own), so
+/// one voxel tells.
+pub fn flagged_components(labelled: &Components, hidden: &[bool]) -> Vec<bool> {
+    let mut flagged = vec![false; labelled.sizes.len()];
+    for (v, &l) in labelled.labels.iter().enumerate() {
+        if l != 0 && hidden[v] {
+            flagged[l as usize - 1] = true;
+        }
+    }
+    flagged
+}
+
 /// `labelled` without the components of `hidden` voxels that share no column with the other
 /// components, or lie, over the columns they share, less than `rise_voxels` above those
 /// components' |S|-weighted depth. A hidden component's rise is the mean over its voxels in

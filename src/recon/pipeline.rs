@@ -17,7 +17,9 @@ use serde::Serialize;
 use super::baselines::{backprojection_points, interferometric_points};
 use super::components::{label_6, label_6_keyed, retain_reaching};
 use super::config::{Imaging, Integration, Isosurface, Method, ReconConfig};
-use super::hidden::{HiddenSummary, RISE_RANGE_BINS, hidden_voxels, keep_above};
+use super::hidden::{
+    HiddenSummary, RISE_RANGE_BINS, flagged_components, hidden_voxels, keep_above,
+};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use super::isosurface::{
     OptimisationError, OptimisationReport, candidates, centre_constant, nearest_candidate,
@@ -765,19 +767,9 @@ fn mmnorm_fields(
     stages.lap("components");
 
     let count = labelled.sizes.len();
-    // Hidden voxels never share a component with the others, so one voxel tells.
-    let hidden_components: Vec<bool> = match &hidden {
-        Some(hidden) => {
-            let mut of = vec![false; count];
-            for (v, &l) in labelled.labels.iter().enumerate() {
-                if l != 0 && hidden[v] {
-                    of[l as usize - 1] = true;
-                }
-            }
-            of
-        }
-        None => Vec::new(),
-    };
+    let hidden_components = hidden
+        .as_deref()
+        .map_or_else(Vec::new, |hidden| flagged_components(&labelled, hidden));
     let progress = Progress::new("rsdf", count as u64, quiet);
     let fields: Vec<SampledField> = (1..=count as u32)
         .map(|label| {

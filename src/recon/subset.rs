@@ -166,8 +166,8 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         per_component: None,
         first: None,
     };
-    let is_hidden = |n: usize| is_hidden(inputs.hidden, n);
-    let any_hidden = (0..inputs.fields.len()).any(is_hidden);
+    let hidden_at = |n: usize| is_hidden(inputs.hidden, n);
+    let any_hidden = (0..inputs.fields.len()).any(hidden_at);
     if opts.subset == SubsetRule::Strongest || (!any_hidden && inputs.fields.len() < 2) {
         return authors(measured);
     }
@@ -197,8 +197,8 @@ pub fn choose(peaks: &[f32], strongest: f32, inputs: &SubsetInputs<'_>) -> Subse
         antennas
     };
     let antennas = union(&|_| true);
-    let hidden_drew = (0..shares.own.len()).any(|n| is_hidden(n) && !shares.own[n].is_empty());
-    let first = hidden_drew.then(|| union(&|n| !is_hidden(n)));
+    let hidden_drew = (0..shares.own.len()).any(|n| hidden_at(n) && !shares.own[n].is_empty());
+    let first = hidden_drew.then(|| union(&|n| !hidden_at(n)));
     Subset {
         antennas,
         strong_fraction,
@@ -236,16 +236,15 @@ fn draw_shares(
     opts: &Optimisation,
 ) -> Option<Drawn> {
     let count = energy.len();
-    let is_hidden = |n: usize| is_hidden(hidden, n);
     let reaches = |n: usize| energy[n].iter().any(|&v| v > 0.0);
-    let (first, hidden): (Vec<usize>, Vec<usize>) = (0..count).partition(|&n| !is_hidden(n));
+    let (first, later): (Vec<usize>, Vec<usize>) = (0..count).partition(|&n| !is_hidden(hidden, n));
     let summed = |over: &[usize]| -> Vec<f32> {
         (0..pool.len())
             .map(|i| over.iter().map(|&n| energy[n][i]).sum())
             .collect()
     };
     let seen_first = first.iter().filter(|&&n| reaches(n)).count();
-    let seen = seen_first + hidden.iter().filter(|&&n| reaches(n)).count();
+    let seen = seen_first + later.iter().filter(|&&n| reaches(n)).count();
     if seen == 0 {
         return None;
     }
@@ -276,7 +275,7 @@ fn draw_shares(
         }
     }
     let total = summed(&(0..count).collect::<Vec<_>>());
-    for (k, n) in hidden.iter().copied().filter(|&n| reaches(n)).enumerate() {
+    for (k, n) in later.iter().copied().filter(|&n| reaches(n)).enumerate() {
         let share = share(opts.antennas, seen, seen_first + k);
         (drawn.own[n], drawn.qualifying[n]) = take(n, share, &total);
     }
