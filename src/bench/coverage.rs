@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::suite::{Case, Suite};
+use super::suite::{Case, Suite, physics_suffix};
 use super::{BenchError, io};
 use crate::capture::dir::write_atomically;
 use crate::eval::{Metrics, evaluate, quantile};
@@ -222,7 +222,8 @@ fn csv_records(text: &str) -> Vec<(usize, Vec<String>)> {
 }
 
 /// Reads the `method` rows of a `bench accuracy` results.csv, keyed by case id
-/// (`scene-pose-condition`). A failed method's empty recall reads as 0, as the report counts it.
+/// (`scene-pose-condition`, with the physics model's suffix where a `physics` column names one
+/// other than the default). A failed method's empty recall reads as 0, as the report counts it.
 pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>, BenchError> {
     let text = std::fs::read_to_string(path).map_err(io(path))?;
     let bad = |line: usize, what: String| BenchError::Results {
@@ -245,6 +246,8 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
         col("f_score")?,
         col("recall")?,
     );
+    // Results written before the physics model was recorded have no such column: the default.
+    let physics = header.iter().position(|h| h == "physics");
     let mut out = Vec::new();
     for (line, fields) in records {
         let get = |k: usize, name: &str| {
@@ -264,8 +267,19 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
             v.parse::<f64>()
                 .map_err(|_| bad(line, format!("`{name}` = {v:?} is not a number")))
         };
+        let suffix = match physics {
+            Some(k) => match get(k, "physics")? {
+                "" => String::new(),
+                model => physics_suffix(model),
+            },
+            None => String::new(),
+        };
         out.push((
-            format!("{}-{}", get(scene, "scene")?, get(condition, "condition")?),
+            format!(
+                "{}-{}{suffix}",
+                get(scene, "scene")?,
+                get(condition, "condition")?
+            ),
             Achieved {
                 f_score: number(f, "f_score")?,
                 recall: number(recall, "recall")?,
@@ -759,6 +773,21 @@ mod tests {
             e.contains("line 2") && e.contains("f_score") && e.contains("high"),
             "{e}"
         );
+        // A suite run under both physics models: each row keys the case id its model gives.
+        std::fs::write(
+            &path,
+            "scene,condition,method,f_score,recall,physics\n\
+             box-flat,los,mmnorm,0.9,0.8,physical-optics\n\
+             box-flat,los,mmnorm,0.7,0.6,point-scatterer\n\
+             cup-flat,los,mmnorm,0.5,0.4,\n",
+        )
+        .unwrap();
+        let ids: Vec<String> = read_results(&path, "mmnorm")
+            .unwrap()
+            .into_iter()
+            .map(|(id, _)| id)
+            .collect();
+        assert_eq!(ids, ["box-flat-los", "box-flat-los-point", "cup-flat-los"]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
