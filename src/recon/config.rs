@@ -161,6 +161,11 @@ pub struct AutoVolume {
     /// How far the imaged volume extends beyond the core, metres, so that a component which
     /// crosses the core's faces is imaged whole instead of cut (see `recon::volume`).
     pub margin_m: f64,
+    /// How far the coarse search looks beyond the aperture's x–y extent, as an angle off
+    /// vertical at the deepest echo, degrees: a surface tilted towards the aperture returns its
+    /// echo from out there. 0 (the default) searches the footprint alone; see `recon::volume`
+    /// for what 10° gains on an object wider than the aperture and what it costs.
+    pub reach_deg: f64,
 }
 
 impl Default for AutoVolume {
@@ -172,6 +177,7 @@ impl Default for AutoVolume {
             power_fraction: 0.25,
             pad_m: 0.03,
             margin_m: 0.03,
+            reach_deg: 0.0,
         }
     }
 }
@@ -597,6 +603,12 @@ impl ReconConfig {
             a.margin_m,
             a.margin_m >= 0.0,
             "must not be negative",
+        )?;
+        check(
+            "auto_volume.reach_deg",
+            a.reach_deg,
+            (0.0..=60.0).contains(&a.reach_deg),
+            "must lie in [0, 60]",
         )?;
         check(
             "backprojection_fraction",

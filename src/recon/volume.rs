@@ -6,9 +6,18 @@
 //!    antennas (Hann-windowed), restricted to `range_window_m` (one-way, range offset removed),
 //!    keeps the ranges within 20 dB of its peak. Nothing lies nearer than the nearest echo, so
 //!    the near-field aliasing of a sparse aperture close to the antennas stays out.
-//! 2. **Coarse image.** S(v) on `coarse_voxel_m` voxels over the aperture's x–y extent and the
-//!    heights those ranges allow below the aperture, from the same antenna subset. A sparse random
-//!    array has no grating lobes, unlike a decimated raster.
+//! 2. **Coarse image.** S(v) on `coarse_voxel_m` voxels over the aperture's x–y extent, grown on
+//!    each side by the deepest echo's range times tan(`reach_deg`) (in whole coarse voxels, so
+//!    that the footprint's voxels stay where they were), and the heights those ranges allow
+//!    below the aperture, from the same antenna subset. A sparse random array has no grating
+//!    lobes, unlike a decimated raster. The growth reaches a surface that lies beyond the
+//!    aperture's footprint and is tilted towards it, which returns its specular echo to the
+//!    antennas near the edge: the rim of an upturned skillet lid 26 cm across under a 16 cm
+//!    aperture lies outside a search over the footprint alone, and mmNorm returns the lid's
+//!    handle only. It is off by default (0°): at a 30×30 cm λ/4 aperture, 10° took in the range
+//!    smear around a plate's and a cylinder's edges under point scatterers (twice the
+//!    reconstruction time) and, under physical optics, a box larger than the voxel limit
+//!    (`docs/bench/physics/notes.md` has the figures).
 //! 3. **Region.** The box around the 6-connected blobs (of at least 27 voxels) of coarse voxels
 //!    with |S| ≥ `power_fraction`·max, padded by `pad_m` (3 cm), on the fine voxel size. Single
 //!    voxels of the random array's sidelobe floor do not stretch the box. The fraction is 0.25
@@ -19,9 +28,9 @@
 //!    0.88 and the 25th percentile from 0.54 to 0.69. 0.15 and 0.1 gave the same median but
 //!    made more cases worse (the cups rotated; the fork on its side through cardboard).
 //! 4. **Core and margin.** That padded box is the volume's [`Core`]. The imaged grid extends
-//!    `margin_m` (3 cm) beyond it on the four lateral faces. The coarse image spans only the
-//!    aperture's x–y extent, but a surface tilted towards the aperture returns its specular echo
-//!    from beyond it: the cracker box on its side has a face 21 cm long under a 12 cm aperture.
+//!    `margin_m` (3 cm) beyond it on the four lateral faces. A surface tilted towards the
+//!    aperture returns its specular echo from beyond the region the coarse threshold keeps: the
+//!    cracker box on its side has a face 21 cm long under a 12 cm aperture.
 //!    Without a margin, its echoing end crossed the box's face and was cut, and mmNorm placed
 //!    the cut component 1.3–1.6 cm too low. The margin must not change the mask elsewhere, so
 //!    the core keeps the roles the box had (`recon::mask`, `recon::pipeline`):
@@ -261,9 +270,9 @@ pub fn select(
             // Never reach up to the aperture itself.
             b[5] = b[5].min(snap(aperture_z - auto.range_window_m[0], false));
             let core_grid = grid_for(b, voxel_m)?;
-            // The margin, in whole voxels, on the lateral faces only: the coarse search spans
-            // the aperture's x–y extent, which a surface tilted towards the aperture can
-            // outreach, but every height that holds an echo (the range window).
+            // The margin, in whole voxels, on the lateral faces only: a surface tilted towards
+            // the aperture can outreach the region the coarse search keeps, but that spans
+            // every height that holds an echo (the range window).
             let n = (auto.margin_m / voxel_m - 1e-9).ceil().max(0.0) as usize;
             let grown_m = n as f64 * voxel_m;
             for a in 0..2 {
@@ -320,7 +329,20 @@ fn find_region(
             })
     };
     let (x, y) = (extent(0), extent(1));
-    let bounds = [x.0, x.1, y.0, y.1, aperture_z - hi, aperture_z - lo];
+    // Whole coarse voxels, so that the footprint's voxels stay where they were without it: a
+    // capture with nothing beyond the footprint keeps its region.
+    let reach_m = auto.coarse_voxel_m
+        * (hi * auto.reach_deg.to_radians().tan() / auto.coarse_voxel_m - 1e-9)
+            .ceil()
+            .max(0.0);
+    let bounds = [
+        x.0 - reach_m,
+        x.1 + reach_m,
+        y.0 - reach_m,
+        y.1 + reach_m,
+        aperture_z - hi,
+        aperture_z - lo,
+    ];
     let coarse = grid_for(bounds, auto.coarse_voxel_m)?;
     let profiles = RangeProfiles::new(&sub, &coarse, pad_factor.min(8));
     let image = backproject(&sub, &coarse, &profiles, None);
@@ -524,5 +546,42 @@ mod tests {
         assert!(contains(&grid, strong) && contains(&grid, weak), "{grid:?}");
         let old = select_with(0.5);
         assert!(contains(&old, strong) && !contains(&old, weak), "{old:?}");
+    }
+
+    #[test]
+    fn the_search_reaches_a_plate_beyond_the_aperture_tilted_towards_it() {
+        // A 4 cm plate under the centre of a 12×12 cm aperture, and another whose centre lies
+        // 4 cm beyond the aperture's edge, tilted 10° towards it: its specular echo returns to
+        // the antennas near that edge.
+        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
+             samples_per_chirp = 512\nrange_offset_m = 0.15\n\
+             [aperture]\nwidth_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.10, 0.0, 0.0]\n\
+             rotation_deg = [0.0, -10.0, 0.0]\n";
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/inline.toml");
+        let scene = Scene::parse(text, &path).unwrap_or_else(|e| panic!("{e}"));
+        let capture = simulate(&scene, true).capture;
+        let select_with = |reach_deg: f64| {
+            let auto = AutoVolume {
+                reach_deg,
+                ..AutoVolume::default()
+            };
+            select(&capture, VolumeSpec::Auto, 0.002, 4, &auto).expect("a volume")
+        };
+        let (centre, beyond) = ([0.0, 0.0, 0.0], [0.115, 0.0, 0.0]);
+        let (grid, core, report) = select_with(10.0);
+        let report = report.expect("the search ran");
+        assert!(
+            contains(&grid, centre) && contains(&grid, beyond),
+            "{grid:?}"
+        );
+        assert!(contains(&core.grid(&grid), beyond), "{report:?}");
+        // Searched over the aperture's footprint alone, the box holds the centre plate only.
+        let (footprint, _, _) = select_with(0.0);
+        assert!(
+            contains(&footprint, centre) && !contains(&footprint, beyond),
+            "{footprint:?}"
+        );
     }
 }
