@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::suite::{Case, Suite, physics_suffix};
+use super::suite::{Case, PHYSICAL_OPTICS, Suite, physics_suffix};
 use super::{BenchError, io};
 use crate::capture::dir::write_atomically;
 use crate::eval::{Metrics, evaluate, quantile};
@@ -246,7 +246,8 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
         col("f_score")?,
         col("recall")?,
     );
-    // Results written before the physics model was recorded have no such column: the default.
+    // Results written before the physics model was recorded have no such column, and an empty
+    // field is the default model too.
     let physics = header.iter().position(|h| h == "physics");
     let mut out = Vec::new();
     for (line, fields) in records {
@@ -267,13 +268,15 @@ pub fn read_results(path: &Path, method: &str) -> Result<Vec<(String, Achieved)>
             v.parse::<f64>()
                 .map_err(|_| bad(line, format!("`{name}` = {v:?} is not a number")))
         };
-        let suffix = match physics {
-            Some(k) => match get(k, "physics")? {
-                "" => String::new(),
-                model => physics_suffix(model),
-            },
-            None => String::new(),
+        let model = match physics {
+            Some(k) => get(k, "physics")?,
+            None => "",
         };
+        let suffix = physics_suffix(if model.is_empty() {
+            PHYSICAL_OPTICS
+        } else {
+            model
+        });
         out.push((
             format!(
                 "{}-{}{suffix}",

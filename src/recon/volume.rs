@@ -106,6 +106,12 @@ pub struct AutoReport {
     pub region_m: [f64; 6],
 }
 
+/// `length_m` rounded up to whole voxels of `voxel_m` (a hair's tolerance, so that an exact
+/// multiple stays one); 0 for a length of 0 or less.
+fn whole_voxels(length_m: f64, voxel_m: f64) -> usize {
+    (length_m / voxel_m - 1e-9).ceil().max(0.0) as usize
+}
+
 /// Height of the aperture plane: the mean z of the phase centres.
 pub fn aperture_z_m(capture: &Capture) -> f64 {
     let centres = capture.centres_m();
@@ -273,7 +279,7 @@ pub fn select(
             // The margin, in whole voxels, on the lateral faces only: a surface tilted towards
             // the aperture can outreach the region the coarse search keeps, but that spans
             // every height that holds an echo (the range window).
-            let n = (auto.margin_m / voxel_m - 1e-9).ceil().max(0.0) as usize;
+            let n = whole_voxels(auto.margin_m, voxel_m);
             let grown_m = n as f64 * voxel_m;
             for a in 0..2 {
                 b[2 * a] -= grown_m;
@@ -332,9 +338,7 @@ fn find_region(
     // Whole coarse voxels, so that the footprint's voxels stay where they were without it: a
     // capture with nothing beyond the footprint keeps its region.
     let reach_m = auto.coarse_voxel_m
-        * (hi * auto.reach_deg.to_radians().tan() / auto.coarse_voxel_m - 1e-9)
-            .ceil()
-            .max(0.0);
+        * whole_voxels(hi * auto.reach_deg.to_radians().tan(), auto.coarse_voxel_m) as f64;
     let bounds = [
         x.0 - reach_m,
         x.1 + reach_m,
@@ -465,8 +469,13 @@ mod tests {
                 }
             }
         }
+        simulated(&text)
+    }
+
+    /// The capture of the scene `text` (scene TOML, paths relative to `tests/`).
+    fn simulated(text: &str) -> Capture {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/inline.toml");
-        let scene = Scene::parse(&text, &path).unwrap_or_else(|e| panic!("{e}"));
+        let scene = Scene::parse(text, &path).unwrap_or_else(|e| panic!("{e}"));
         simulate(&scene, true).capture
     }
 
@@ -559,9 +568,7 @@ mod tests {
              [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n\
              [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.10, 0.0, 0.0]\n\
              rotation_deg = [0.0, -10.0, 0.0]\n";
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/inline.toml");
-        let scene = Scene::parse(text, &path).unwrap_or_else(|e| panic!("{e}"));
-        let capture = simulate(&scene, true).capture;
+        let capture = simulated(text);
         let select_with = |reach_deg: f64| {
             let auto = AutoVolume {
                 reach_deg,
