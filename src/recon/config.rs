@@ -164,8 +164,14 @@ pub struct AutoVolume {
     /// How far the coarse search looks beyond the aperture's x–y extent, as an angle off
     /// vertical at the deepest echo, degrees: a surface tilted towards the aperture returns its
     /// echo from out there. 0 (the default) searches the footprint alone; see `recon::volume`
-    /// for what 10° gains on an object wider than the aperture and what it costs.
+    /// and `docs/bench/physics/notes.md` for what 10° gains on an object wider than the aperture.
     pub reach_deg: f64,
+    /// Where the coarse image comes from a random draw of the antennas (more than
+    /// `coarse_antennas`), a coarse voxel counts as strong only if |S| is also this many
+    /// standard errors of the draw's estimate clear of zero. A draw seen by few antennas (a
+    /// specular patch) leaves a sidelobe floor that the whole aperture does not have; 0 turns
+    /// the test off (see `recon::volume`).
+    pub subset_sigmas: f64,
 }
 
 impl Default for AutoVolume {
@@ -178,6 +184,7 @@ impl Default for AutoVolume {
             pad_m: 0.03,
             margin_m: 0.03,
             reach_deg: 0.0,
+            subset_sigmas: 4.0,
         }
     }
 }
@@ -609,6 +616,12 @@ impl ReconConfig {
             a.reach_deg,
             (0.0..=60.0).contains(&a.reach_deg),
             "must lie in [0, 60]",
+        )?;
+        check(
+            "auto_volume.subset_sigmas",
+            a.subset_sigmas,
+            (0.0..=10.0).contains(&a.subset_sigmas),
+            "must lie in [0, 10]",
         )?;
         check(
             "backprojection_fraction",

@@ -14,13 +14,22 @@
 //!    aperture's footprint and is tilted towards it, which returns its specular echo to the
 //!    antennas near the edge: the rim of an upturned skillet lid 26 cm across under a 16 cm
 //!    aperture lies outside a search over the footprint alone, and mmNorm returns the lid's
-//!    handle only. It is off by default (0°): at a 30×30 cm λ/4 aperture, 10° took in the range
-//!    smear around a plate's and a cylinder's edges under point scatterers (twice the
-//!    reconstruction time) and, under physical optics, a box larger than the voxel limit
-//!    (`docs/bench/physics/notes.md` has the figures).
+//!    handle only.
 //! 3. **Region.** The box around the 6-connected blobs (of at least 27 voxels) of coarse voxels
 //!    with |S| ≥ `power_fraction`·max, padded by `pad_m` (3 cm), on the fine voxel size. Single
-//!    voxels of the random array's sidelobe floor do not stretch the box. The fraction is 0.25
+//!    voxels of the random array's sidelobe floor do not stretch the box.
+//!
+//!    Where the subset is a draw from more antennas (`coarse_antennas` of a larger aperture),
+//!    a voxel must also be `subset_sigmas` (4) standard errors clear of zero. A specular echo
+//!    reaches few antennas, and a random array's sidelobe floor relative to its peak is about
+//!    one over the number of antennas that see it: at a 30×30 cm λ/4 aperture (96 721
+//!    antennas, 10 000 drawn) the coarse image's 99th percentile lay 9–11 dB under its peak
+//!    and blobs of that floor crossed the threshold across the footprint and beyond it, where
+//!    the whole aperture's image is empty to −30 dB. The draw is imaged in 8 random groups;
+//!    their spread at each voxel gives the standard error of the draw's mean against the whole
+//!    aperture's (with the finite-population correction, so a capture with no more antennas
+//!    than the draw is imaged and judged as before). If no voxel passes, the draw is too small
+//!    to tell and the power threshold alone decides. The fraction is 0.25
 //!    (−12 dB). A specular object returns most of its power from one or two highlights, so at
 //!    0.5 the box held only those and the pad: under the paper's aperture it cut a 20 cm
 //!    screwdriver to 7.6 cm, its handle's end and its shaft's tip outside. On the reduced
@@ -65,6 +74,12 @@ use crate::signal::{Rng, hann_window};
 /// Smallest 6-connected blob of strong coarse voxels that counts as an object (3×3×3).
 const MIN_BLOB_VOXELS: usize = 27;
 
+/// Random groups the coarse draw is imaged in, to estimate each voxel's standard error.
+const SUBSET_GROUPS: usize = 8;
+
+/// Seed of the split of the coarse draw into groups.
+const GROUP_SEED: u64 = 0x6772_6f75_7073;
+
 /// The largest fine grid accepted, voxels (about 1.3 GB of image and normals).
 pub const MAX_VOXELS: usize = 100_000_000;
 
@@ -103,6 +118,9 @@ pub struct AutoReport {
     pub echo_range_m: [f64; 2],
     pub coarse_grid: VoxelGrid,
     pub coarse_antennas: usize,
+    /// Coarse voxels above the power threshold that were not `subset_sigmas` standard errors
+    /// clear of zero, and so not counted as strong.
+    pub uncertain_voxels: usize,
     pub region_m: [f64; 6],
 }
 
@@ -348,14 +366,34 @@ fn find_region(
         aperture_z - lo,
     ];
     let coarse = grid_for(bounds, auto.coarse_voxel_m)?;
-    let profiles = RangeProfiles::new(&sub, &coarse, pad_factor.min(8));
-    let image = backproject(&sub, &coarse, &profiles, None);
+    let (image, standard_error) = coarse_image(&sub, &coarse, pad_factor.min(8), n);
     let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
     let floor = auto.power_fraction as f32 * peak;
-    let strong: Vec<bool> = image
+    let sigmas = auto.subset_sigmas as f32;
+    let above = |s: &Complex32| peak > 0.0 && s.norm() >= floor;
+    let mut uncertain_voxels = 0;
+    let mut strong: Vec<bool> = image
         .iter()
-        .map(|s| peak > 0.0 && s.norm() >= floor)
+        .enumerate()
+        .map(|(v, s)| {
+            let certain = standard_error
+                .as_ref()
+                .is_none_or(|se| s.norm() >= sigmas * se[v]);
+            uncertain_voxels += usize::from(above(s) && !certain);
+            above(s) && certain
+        })
         .collect();
+    if !strong.contains(&true) && uncertain_voxels > 0 {
+        // Too few of the draw see anything for the test to tell: keep the power threshold.
+        tracing::warn!(
+            "no coarse voxel is auto_volume.subset_sigmas = {} standard errors clear of zero with \
+             auto_volume.coarse_antennas = {}; the power threshold alone bounds the volume",
+            auto.subset_sigmas,
+            chosen.len()
+        );
+        strong = image.iter().map(above).collect();
+        uncertain_voxels = 0;
+    }
     // A sparse random array leaves a noise-like sidelobe floor whose highest voxels can cross
     // the threshold one by one; objects are blobs. Keep the 6-connected blobs of at least
     // MIN_BLOB_VOXELS, or the largest one if none is that big.
@@ -390,8 +428,63 @@ fn find_region(
         echo_range_m: [lo, hi],
         coarse_grid: coarse,
         coarse_antennas: chosen.len(),
+        uncertain_voxels,
         region_m: region,
     })
+}
+
+/// The coarse image from `sub`, a random draw of the capture's `total` antennas, and, when
+/// some antennas were left out, each voxel's standard error as an estimate of the image the
+/// whole aperture would give. The draw is imaged in [`SUBSET_GROUPS`] random groups (the same
+/// work as imaging it at once); the spread of the groups' images about their weighted mean
+/// gives the per-antenna variance at each voxel, and the standard error of a mean over
+/// `sub.antennas()` of `total` antennas drawn without replacement follows.
+fn coarse_image(
+    sub: &Capture,
+    coarse: &VoxelGrid,
+    pad_factor: usize,
+    total: usize,
+) -> (Vec<Complex32>, Option<Vec<f32>>) {
+    let drawn = sub.antennas();
+    if drawn >= total || drawn < 2 * SUBSET_GROUPS {
+        let profiles = RangeProfiles::new(sub, coarse, pad_factor);
+        return (backproject(sub, coarse, &profiles, None), None);
+    }
+    let mut order: Vec<usize> = (0..drawn).collect();
+    Rng::new(GROUP_SEED).partial_shuffle(&mut order, drawn);
+    let groups: Vec<(f32, Vec<Complex32>)> = order
+        .chunks(drawn.div_ceil(SUBSET_GROUPS))
+        .map(|chunk| {
+            let mut indices = chunk.to_vec();
+            indices.sort_unstable();
+            let group = sub.subset(&indices);
+            let profiles = RangeProfiles::new(&group, coarse, pad_factor);
+            let share = indices.len() as f32 / drawn as f32;
+            (share, backproject(&group, coarse, &profiles, None))
+        })
+        .collect();
+    let mut image = vec![Complex32::new(0.0, 0.0); coarse.len()];
+    for (share, group) in &groups {
+        for (s, g) in image.iter_mut().zip(group) {
+            *s += g * *share;
+        }
+    }
+    // Var(one antenna's term) ≈ Σ n_g·|S_g − S|² / (G − 1); the mean of `drawn` of `total`
+    // has that over `drawn`, times the finite-population correction 1 − drawn/total.
+    let unsampled = 1.0 - drawn as f64 / total as f64;
+    let scale = unsampled / (groups.len() - 1) as f64;
+    let standard_error = image
+        .iter()
+        .enumerate()
+        .map(|(v, s)| {
+            let spread: f64 = groups
+                .iter()
+                .map(|(share, g)| f64::from(*share) * f64::from((g[v] - s).norm_sqr()))
+                .sum();
+            (spread * scale).sqrt() as f32
+        })
+        .collect();
+    (image, Some(standard_error))
 }
 
 /// One-way ranges (metres, range offset removed) whose summed echo power lies within 20 dB of
@@ -590,5 +683,42 @@ mod tests {
             contains(&footprint, centre) && !contains(&footprint, beyond),
             "{footprint:?}"
         );
+    }
+
+    #[test]
+    fn a_small_draw_keeps_the_plate_and_not_its_sidelobes() {
+        // A 4 cm plate under a 12×12 cm aperture of 961 antennas returns its specular echo to
+        // the antennas above it only. Imaged from a draw of 500 of them, the few that see it
+        // leave a sidelobe floor that crosses the power threshold across the footprint.
+        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
+             samples_per_chirp = 512\nrange_offset_m = 0.15\n\
+             [aperture]\nwidth_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n";
+        let capture = simulated(text);
+        let region_with = |coarse_antennas: usize, subset_sigmas: f64| {
+            let auto = AutoVolume {
+                coarse_antennas,
+                subset_sigmas,
+                ..AutoVolume::default()
+            };
+            let (_, _, report) = select(&capture, VolumeSpec::Auto, 0.002, 4, &auto)
+                .unwrap_or_else(|e| panic!("{e}"));
+            report.expect("the search ran")
+        };
+        // The widest lateral reach of the region from the plate's centre, metres.
+        let reach = |r: &AutoReport| (0..4).map(|i| r.region_m[i].abs()).fold(0.0, f64::max);
+        let untested = region_with(500, 0.0);
+        assert!(reach(&untested) > 0.045, "{untested:?}");
+        let tested = region_with(500, 4.0);
+        assert!(tested.uncertain_voxels > 0, "{tested:?}");
+        // The plate (±2 cm) within a coarse voxel, and no more.
+        assert!(reach(&tested) < 0.03, "{tested:?}");
+        let r = tested.region_m;
+        assert!(r[0] < -0.018 && r[1] > 0.018, "{tested:?}");
+        assert!(r[2] < -0.018 && r[3] > 0.018, "{tested:?}");
+        // From 200, too few see the plate for any voxel to pass: the threshold alone decides.
+        let unsure = region_with(200, 4.0);
+        assert_eq!(unsure.uncertain_voxels, 0, "{unsure:?}");
+        assert!(reach(&unsure) > 0.014, "{unsure:?}");
     }
 }
