@@ -14,7 +14,12 @@
 //!    aperture's footprint and is tilted towards it, which returns its specular echo to the
 //!    antennas near the edge: the rim of an upturned skillet lid 26 cm across under a 16 cm
 //!    aperture lies outside a search over the footprint alone, and mmNorm returns the lid's
-//!    handle only.
+//!    handle only. It is off by default (0°). Step 3's test keeps the random draw's sidelobes
+//!    out of the wider search on large apertures, but a λ/2 raster is ambiguous for echoes
+//!    arriving beyond about 29°, and the wider search finds those aliases where there is
+//!    nothing: a plate beside a sphere under a 24×14 cm raster of 2 mm gained two false
+//!    components at 10° (none with the same scene at 1 mm), and on the reduced suite 7 cases
+//!    fell while 19 rose (`docs/bench/physics/notes.md`).
 //! 3. **Region.** The box around the 6-connected blobs (of at least 27 voxels) of coarse voxels
 //!    with |S| ≥ `power_fraction`·max, padded by `pad_m` (3 cm), on the fine voxel size. Single
 //!    voxels of the random array's sidelobe floor do not stretch the box.
