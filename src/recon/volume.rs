@@ -381,11 +381,12 @@ fn find_region(
         .iter()
         .enumerate()
         .map(|(v, s)| {
+            let above = above(s);
             let certain = standard_error
                 .as_ref()
                 .is_none_or(|se| s.norm() >= sigmas * se[v]);
-            uncertain_voxels += usize::from(above(s) && !certain);
-            above(s) && certain
+            uncertain_voxels += usize::from(above && !certain);
+            above && certain
         })
         .collect();
     if !strong.contains(&true) && uncertain_voxels > 0 {
@@ -450,10 +451,13 @@ fn coarse_image(
     pad_factor: usize,
     total: usize,
 ) -> (Vec<Complex32>, Option<Vec<f32>>) {
+    let image_of = |c: &Capture| {
+        let profiles = RangeProfiles::new(c, coarse, pad_factor);
+        backproject(c, coarse, &profiles, None)
+    };
     let drawn = sub.antennas();
     if drawn >= total || drawn < 2 * SUBSET_GROUPS {
-        let profiles = RangeProfiles::new(sub, coarse, pad_factor);
-        return (backproject(sub, coarse, &profiles, None), None);
+        return (image_of(sub), None);
     }
     let mut order: Vec<usize> = (0..drawn).collect();
     Rng::new(GROUP_SEED).partial_shuffle(&mut order, drawn);
@@ -462,10 +466,8 @@ fn coarse_image(
         .map(|chunk| {
             let mut indices = chunk.to_vec();
             indices.sort_unstable();
-            let group = sub.subset(&indices);
-            let profiles = RangeProfiles::new(&group, coarse, pad_factor);
             let share = indices.len() as f32 / drawn as f32;
-            (share, backproject(&group, coarse, &profiles, None))
+            (share, image_of(&sub.subset(&indices)))
         })
         .collect();
     let mut image = vec![Complex32::new(0.0, 0.0); coarse.len()];
