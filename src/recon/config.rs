@@ -163,8 +163,9 @@ pub struct AutoVolume {
     pub margin_m: f64,
     /// How far the coarse search looks beyond the aperture's x–y extent, as an angle off
     /// vertical at the deepest echo, degrees: a surface tilted towards the aperture returns its
-    /// echo from out there. 0 (the default) searches the footprint alone; see `recon::volume`
-    /// and `docs/bench/physics/notes.md` for what 10° gains on an object wider than the aperture.
+    /// echo from out there. 0 searches the footprint alone; see `recon::volume` and
+    /// `docs/bench/physics/notes.md` for what the default 10° gains on an object wider than the
+    /// aperture.
     pub reach_deg: f64,
     /// Where the coarse image comes from a random draw of the antennas (more than
     /// `coarse_antennas`), a coarse voxel counts as strong only if |S| is also this many
@@ -183,7 +184,7 @@ impl Default for AutoVolume {
             power_fraction: 0.25,
             pad_m: 0.03,
             margin_m: 0.03,
-            reach_deg: 0.0,
+            reach_deg: 10.0,
             subset_sigmas: 4.0,
         }
     }

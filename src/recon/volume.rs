@@ -14,12 +14,13 @@
 //!    aperture's footprint and is tilted towards it, which returns its specular echo to the
 //!    antennas near the edge: the rim of an upturned skillet lid 26 cm across under a 16 cm
 //!    aperture lies outside a search over the footprint alone, and mmNorm returns the lid's
-//!    handle only. It is off by default (0°). Step 3's test keeps the random draw's sidelobes
-//!    out of the wider search on large apertures, but a λ/2 raster is ambiguous for echoes
-//!    arriving beyond about 29°, and the wider search finds those aliases where there is
-//!    nothing: a plate beside a sphere under a 24×14 cm raster of 2 mm gained two false
-//!    components at 10° (none with the same scene at 1 mm), and on the reduced suite 7 cases
-//!    fell while 19 rose (`docs/bench/physics/notes.md`).
+//!    handle only. A voxel beyond the footprint is seen from one side only, and a raster of
+//!    pitch d samples an echo without ambiguity only within λ/(4d) of broadside (about 29° at
+//!    λ/2): the antennas that see such a voxel more steeply than that add up an alias of an echo
+//!    from the other side. Those voxels are therefore imaged from the antennas that see them
+//!    within that angle only (`beyond_footprint_unambiguous`). From every antenna, a plate
+//!    beside a sphere under a 24×14 cm raster of 2 mm showed a blob at 0.71 of the peak 6 cm
+//!    beyond the footprint, where nothing is, and gained two false components at 10°.
 //! 3. **Region.** The box around the 6-connected blobs (of at least 27 voxels) of coarse voxels
 //!    with |S| ≥ `power_fraction`·max, padded by `pad_m` (3 cm), on the fine voxel size. Single
 //!    voxels of the random array's sidelobe floor do not stretch the box.
@@ -371,7 +372,12 @@ fn find_region(
         aperture_z - lo,
     ];
     let coarse = grid_for(bounds, auto.coarse_voxel_m)?;
-    let (image, standard_error) = coarse_image(&sub, &coarse, pad_factor.min(8), n);
+    let pad_factor = pad_factor.min(8);
+    let (mut image, standard_error) = coarse_image(&sub, &coarse, pad_factor, n);
+    if reach_m > 0.0 {
+        let footprint = [x.0, x.1, y.0, y.1];
+        beyond_footprint_unambiguous(&sub, &coarse, pad_factor, footprint, &mut image);
+    }
     let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
     let floor = auto.power_fraction as f32 * peak;
     let sigmas = auto.subset_sigmas as f32;
@@ -493,6 +499,123 @@ fn coarse_image(
         .collect();
     (image, Some(standard_error))
 }
+
+/// Lateral size of the cells of antennas the voxels beyond the footprint are imaged from, metres.
+const CELL_M: f64 = 0.01;
+
+/// Re-images the coarse voxels beyond the aperture's `footprint` ([x0, x1, y0, y1]) from the
+/// antennas that see each within the raster's unambiguous angles ([`unambiguous_sines`]); the
+/// footprint's voxels keep `image`. A raster of pitch d samples an echo arriving at direction
+/// cosine u without ambiguity only for |u| < λ/(4d): an echo at u aliases to u − λ/(2d). A voxel
+/// over the footprint is seen from every side, but one beyond it only from one side, and the
+/// antennas that see it at steep angles add up an alias of an echo from the other side where
+/// nothing is. The antennas are grouped in cells of [`CELL_M`], each imaged on its own and added
+/// to a voxel, weighted by its share of the antennas, where the cell's centroid sees it within
+/// the angles on both axes. Nothing changes where every antenna sees every such voxel within
+/// them, as under a raster of λ/4 or finer. Where the coarse image is a draw (step 3), a voxel
+/// out there is held to the standard error of the draw's unrestricted image.
+fn beyond_footprint_unambiguous(
+    sub: &Capture,
+    coarse: &VoxelGrid,
+    pad_factor: usize,
+    footprint: [f64; 4],
+    image: &mut [Complex32],
+) {
+    let sines = unambiguous_sines(sub);
+    if sines.iter().all(|&s| s >= 1.0) {
+        return;
+    }
+    let [_, ny, nz] = coarse.dims;
+    let centre = |v: usize| coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+    let beyond: Vec<usize> = (0..coarse.len())
+        .filter(|&v| {
+            let c = centre(v);
+            c[0] < footprint[0] || c[0] > footprint[1] || c[1] < footprint[2] || c[1] > footprint[3]
+        })
+        .collect();
+    // The steepest view of a voxel along an axis is from the aperture's far side there.
+    let centres = sub.centres_m();
+    let plane_z_m = centres.iter().map(|c| c[2]).sum::<f64>() / centres.len().max(1) as f64;
+    let seen_steeply = |v: usize| {
+        let p = centre(v);
+        let depth_m = plane_z_m - p[2];
+        [
+            (0, footprint[0], footprint[1]),
+            (1, footprint[2], footprint[3]),
+        ]
+        .iter()
+        .any(|&(k, lo, hi)| {
+            let lateral_m = (p[k] - lo).abs().max((p[k] - hi).abs());
+            lateral_m > sines[k] * lateral_m.hypot(depth_m)
+        })
+    };
+    if !beyond.iter().any(|&v| seen_steeply(v)) {
+        return;
+    }
+    let mut cells: std::collections::BTreeMap<(i64, i64), Vec<usize>> = Default::default();
+    for (a, c) in centres.iter().enumerate() {
+        let key = (
+            (c[0] / CELL_M).floor() as i64,
+            (c[1] / CELL_M).floor() as i64,
+        );
+        cells.entry(key).or_default().push(a);
+    }
+    for &v in &beyond {
+        image[v] = Complex32::new(0.0, 0.0);
+    }
+    let total = sub.antennas() as f64;
+    for antennas in cells.values() {
+        let mut centroid = [0.0; 3];
+        for &a in antennas {
+            for k in 0..3 {
+                centroid[k] += centres[a][k] / antennas.len() as f64;
+            }
+        }
+        let cell = sub.subset(antennas);
+        let profiles = RangeProfiles::new(&cell, coarse, pad_factor);
+        let cell_image = backproject(&cell, coarse, &profiles, None);
+        let share = (antennas.len() as f64 / total) as f32;
+        for &v in &beyond {
+            let p = centre(v);
+            let offset_m = [0, 1, 2].map(|k| p[k] - centroid[k]);
+            let range_m = offset_m.iter().map(|o| o * o).sum::<f64>().sqrt();
+            if (0..2).all(|k| offset_m[k].abs() <= sines[k] * range_m) {
+                image[v] += cell_image[v] * share;
+            }
+        }
+    }
+}
+
+/// Sines of the steepest angles off broadside, along x and along y, at which the phase
+/// centres sample an echo without ambiguity: λ/(4·pitch) at the sweep's shortest wavelength,
+/// where the pitch is the median step between successive distinct coordinates (1 for a
+/// random or λ/4 aperture, whose steps are finer).
+fn unambiguous_sines(capture: &Capture) -> [f64; 2] {
+    let plan = capture.plan;
+    let highest_hz = plan
+        .frequency_hz(0)
+        .max(plan.frequency_hz(plan.samples_per_chirp.saturating_sub(1)));
+    let wavelength_m = SPEED_OF_LIGHT_M_PER_S / highest_hz;
+    let centres = capture.centres_m();
+    [0, 1].map(|k| {
+        let mut coords: Vec<f64> = centres.iter().map(|c| c[k]).collect();
+        coords.sort_unstable_by(f64::total_cmp);
+        let mut steps: Vec<f64> = coords
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .filter(|&step| step > DISTINCT_M)
+            .collect();
+        if steps.is_empty() {
+            return 1.0;
+        }
+        steps.sort_unstable_by(f64::total_cmp);
+        let pitch_m = steps[steps.len() / 2];
+        (wavelength_m / (4.0 * pitch_m)).min(1.0)
+    })
+}
+
+/// Coordinates closer than this are one raster position, metres.
+const DISTINCT_M: f64 = 1e-5;
 
 /// One-way ranges (metres, range offset removed) whose summed echo power lies within 20 dB of
 /// the strongest inside `window_m`. The Hann window's main lobe (±1.5 range resolutions at
@@ -690,6 +813,80 @@ mod tests {
             contains(&footprint, centre) && !contains(&footprint, beyond),
             "{footprint:?}"
         );
+    }
+
+    #[test]
+    fn beyond_the_footprint_a_lambda_half_raster_images_no_alias() {
+        // A sphere returns echoes to every antenna, those far from it at steep angles: a λ/2
+        // raster aliases the steepest of them beyond the aperture's far edge, where nothing is.
+        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
+             samples_per_chirp = 512\nrange_offset_m = 0.15\n\
+             [aperture]\nwidth_m = 0.24\nheight_m = 0.14\nspacing_m = 0.002\nz_m = 0.22\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [-0.07, 0.0, 0.02]\n\
+             [[object]]\nshape = \"sphere\"\nradius_m = 0.05\nposition_m = [0.07, 0.0, -0.03]\n";
+        let capture = simulated(text);
+        let sines = unambiguous_sines(&capture);
+        // 2 mm steps at the sweep's top, 80.5 GHz (λ 3.72 mm): 0.466, about 28°.
+        for s in sines {
+            assert!((s - 0.4656).abs() < 0.001, "{sines:?}");
+        }
+        let centres = capture.centres_m();
+        let (x0, x1) = (-0.12, 0.12);
+        let (y0, y1) = (-0.07, 0.07);
+        assert!(
+            centres
+                .iter()
+                .all(|c| c[0] >= x0 - 1e-9 && c[0] <= x1 + 1e-9)
+        );
+        let reach_m = 0.054;
+        let coarse = grid_for(
+            [
+                x0 - reach_m,
+                x1 + reach_m,
+                y0 - reach_m,
+                y1 + reach_m,
+                -0.08,
+                0.1,
+            ],
+            0.006,
+        )
+        .expect("a grid");
+        let (mut image, _) = coarse_image(&capture, &coarse, 4, capture.antennas());
+        let [_, ny, nz] = coarse.dims;
+        let beyond = |v: usize| {
+            let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            c[0] < x0 || c[0] > x1 || c[1] < y0 || c[1] > y1
+        };
+        // The strongest voxel beyond the footprint, relative to the image's peak.
+        let strongest_beyond = |image: &[Complex32]| {
+            let peak = image.iter().map(|s| s.norm()).fold(0.0f32, f32::max);
+            let beyond_peak = (0..image.len())
+                .filter(|&v| beyond(v))
+                .map(|v| image[v].norm())
+                .fold(0.0f32, f32::max);
+            beyond_peak / peak
+        };
+        // From every antenna, a blob 6 cm beyond the plate's edge of the footprint reaches
+        // 0.71 of the peak; imaged from the antennas that see it unambiguously, 0.21, under the
+        // power threshold (0.25).
+        let everyone = strongest_beyond(&image);
+        assert!(everyone > 0.5, "{everyone}");
+        let inside: Vec<Complex32> = (0..image.len())
+            .filter(|&v| !beyond(v))
+            .map(|v| image[v])
+            .collect();
+        beyond_footprint_unambiguous(&capture, &coarse, 4, [x0, x1, y0, y1], &mut image);
+        let unambiguous = strongest_beyond(&image);
+        assert!(
+            unambiguous < AutoVolume::default().power_fraction as f32,
+            "{everyone} -> {unambiguous}"
+        );
+        // The footprint's voxels are left as they were.
+        let kept: Vec<Complex32> = (0..image.len())
+            .filter(|&v| !beyond(v))
+            .map(|v| image[v])
+            .collect();
+        assert_eq!(kept, inside);
     }
 
     #[test]
