@@ -890,6 +890,33 @@ mod tests {
     }
 
     #[test]
+    fn a_quarter_wavelength_raster_is_not_reimaged_beyond_its_footprint() {
+        // λ0/4 steps: unambiguous to 79° at this sweep's top (79 GHz), steeper than any
+        // antenna sees a voxel 3 cm beyond this 8×8 cm aperture's edge from 30 cm above it.
+        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
+             samples_per_chirp = 256\nrange_offset_m = 0.15\n\
+             [aperture]\nwidth_m = 0.08\nheight_m = 0.08\nspacing_m = 0.000967\nz_m = 0.3\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n";
+        let capture = simulated(text);
+        let sines = unambiguous_sines(&capture);
+        for s in sines {
+            assert!(s > 0.95 && s < 1.0, "{sines:?}");
+        }
+        // Voxels whose value the re-imaging changes, on a 6 mm grid between heights z0 and z1.
+        let changed = |z0: f64, z1: f64| {
+            let grid = grid_for([-0.07, 0.07, -0.07, 0.07, z0, z1], 0.006).expect("a grid");
+            let (image, _) = coarse_image(&capture, &grid, 4, capture.antennas());
+            let mut after = image.clone();
+            let footprint = [-0.04, 0.04, -0.04, 0.04];
+            beyond_footprint_unambiguous(&capture, &grid, 4, footprint, &mut after);
+            after.iter().zip(&image).filter(|(a, b)| a != b).count()
+        };
+        assert_eq!(changed(-0.03, 0.03), 0);
+        // The same voxels 1–2 cm under the aperture are seen beyond the angle, and re-imaged.
+        assert!(changed(0.28, 0.29) > 0);
+    }
+
+    #[test]
     fn a_small_draw_keeps_the_plate_and_not_its_sidelobes() {
         // A 4 cm plate under a 12×12 cm aperture of 961 antennas returns its specular echo to
         // the antennas above it only. Imaged from a draw of 500 of them, the few that see it
