@@ -702,6 +702,17 @@ mod tests {
         simulate(&scene, true).capture
     }
 
+    /// The capture of a 4 cm plate at the origin (and `more` objects) under `aperture` (the
+    /// `[aperture]` table's keys), `samples` per chirp.
+    fn plate_under(aperture: &str, samples: usize, more: &str) -> Capture {
+        simulated(&format!(
+            "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
+             samples_per_chirp = {samples}\nrange_offset_m = 0.15\n[aperture]\n{aperture}\n\
+             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n\
+             {more}"
+        ))
+    }
+
     fn contains(grid: &VoxelGrid, p: [f64; 3]) -> bool {
         (0..3).all(|a| {
             let lo = grid.origin_m[a];
@@ -785,13 +796,12 @@ mod tests {
         // A 4 cm plate under the centre of a 12×12 cm aperture, and another whose centre lies
         // 4 cm beyond the aperture's edge, tilted 10° towards it: its specular echo returns to
         // the antennas near that edge.
-        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
-             samples_per_chirp = 512\nrange_offset_m = 0.15\n\
-             [aperture]\nwidth_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3\n\
-             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n\
-             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.10, 0.0, 0.0]\n\
-             rotation_deg = [0.0, -10.0, 0.0]\n";
-        let capture = simulated(text);
+        let capture = plate_under(
+            "width_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3",
+            512,
+            "[[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.10, 0.0, 0.0]\n\
+             rotation_deg = [0.0, -10.0, 0.0]\n",
+        );
         let select_with = |reach_deg: f64| {
             let auto = AutoVolume {
                 reach_deg,
@@ -893,11 +903,8 @@ mod tests {
     fn a_quarter_wavelength_raster_is_not_reimaged_beyond_its_footprint() {
         // λ0/4 steps: unambiguous to 79° at this sweep's top (79 GHz), steeper than any
         // antenna sees a voxel 3 cm beyond this 8×8 cm aperture's edge from 30 cm above it.
-        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
-             samples_per_chirp = 256\nrange_offset_m = 0.15\n\
-             [aperture]\nwidth_m = 0.08\nheight_m = 0.08\nspacing_m = 0.000967\nz_m = 0.3\n\
-             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n";
-        let capture = simulated(text);
+        let aperture = "width_m = 0.08\nheight_m = 0.08\nspacing_m = 0.000967\nz_m = 0.3";
+        let capture = plate_under(aperture, 256, "");
         let sines = unambiguous_sines(&capture);
         for s in sines {
             assert!(s > 0.95 && s < 1.0, "{sines:?}");
@@ -921,11 +928,8 @@ mod tests {
         // A 4 cm plate under a 12×12 cm aperture of 961 antennas returns its specular echo to
         // the antennas above it only. Imaged from a draw of 500 of them, the few that see it
         // leave a sidelobe floor that crosses the power threshold across the footprint.
-        let text = "[radar]\nstart_frequency_hz = 77.5e9\nfrequency_step_hz = 5.859375e6\n\
-             samples_per_chirp = 512\nrange_offset_m = 0.15\n\
-             [aperture]\nwidth_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3\n\
-             [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [0.0, 0.0, 0.0]\n";
-        let capture = simulated(text);
+        let aperture = "width_m = 0.12\nheight_m = 0.12\nspacing_m = 0.004\nz_m = 0.3";
+        let capture = plate_under(aperture, 512, "");
         let region_with = |coarse_antennas: usize, subset_sigmas: f64| {
             let auto = AutoVolume {
                 coarse_antennas,
