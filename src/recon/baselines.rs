@@ -31,14 +31,10 @@ pub fn backprojection_points(
 ) -> (Vec<[f64; 3]>, Vec<usize>) {
     let peak = magnitude.iter().copied().fold(0.0f32, f32::max);
     let floor = fraction as f32 * peak;
-    let [_, ny, nz] = grid.dims;
     let kept: Vec<usize> = (0..magnitude.len())
         .filter(|&v| peak > 0.0 && magnitude[v] >= floor)
         .collect();
-    let points = kept
-        .iter()
-        .map(|&v| grid.centre(v / (ny * nz), (v / nz) % ny, v % nz))
-        .collect();
+    let points = kept.iter().map(|&v| grid.centre_of(v)).collect();
     (points, kept)
 }
 

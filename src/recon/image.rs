@@ -52,6 +52,12 @@ impl VoxelGrid {
         ]
     }
 
+    /// Centre of the voxel at flat (C-order) index `v`.
+    pub fn centre_of(&self, v: usize) -> [f64; 3] {
+        let [_, ny, nz] = self.dims;
+        self.centre(v / (ny * nz), (v / nz) % ny, v % nz)
+    }
+
     /// Evaluates `f(flat index, voxel centre)` for every voxel in parallel (x-slabs), in C order,
     /// counting finished x-slabs on `progress`.
     pub fn par_map<T: Send + Clone>(

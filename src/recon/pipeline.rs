@@ -879,11 +879,10 @@ fn mmnorm_points(
     let mut comps = Vec::new();
     for (n, field) in fields.iter().enumerate() {
         let g = &field.grid;
-        let [_, ny, nz] = g.dims;
         let before = points.len();
         for (v, &f) in field.values.iter().enumerate() {
             if f.is_finite() && (f64::from(f) - constants[n]).abs() < 0.5 * g.voxel_m {
-                let p = g.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+                let p = g.centre_of(v);
                 let normal = normals[flat_index(grid, &p)];
                 points.push(p);
                 point_normals.push(normal.map(f64::from));
@@ -982,14 +981,13 @@ fn crop(grid: &VoxelGrid, f: &[f32]) -> SampledField {
 /// (f, |S|) for the component's voxels.
 fn component_values(grid: &VoxelGrid, field: &SampledField, magnitude: &[f32]) -> Vec<(f32, f32)> {
     let g = &field.grid;
-    let [_, ny, nz] = g.dims;
     field
         .values
         .iter()
         .enumerate()
         .filter(|(_, f)| f.is_finite())
         .map(|(v, &f)| {
-            let p = g.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            let p = g.centre_of(v);
             (f, magnitude[flat_index(grid, &p)])
         })
         .collect()

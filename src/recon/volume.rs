@@ -74,7 +74,7 @@ use super::components::label_6;
 use super::config::{AutoVolume, VolumeSpec};
 use super::image::{RangeProfiles, VoxelGrid, backproject};
 use crate::SPEED_OF_LIGHT_M_PER_S;
-use crate::capture::Capture;
+use crate::capture::{Capture, FrequencyPlan};
 use crate::signal::{Rng, hann_window};
 
 /// Smallest 6-connected blob of strong coarse voxels that counts as an object (3×3×3).
@@ -413,7 +413,6 @@ fn find_region(
     let largest = blobs.sizes.iter().copied().max().unwrap_or(0);
     let min_size = MIN_BLOB_VOXELS.min(largest);
     let kept = |label: u32| label != 0 && blobs.sizes[label as usize - 1] >= min_size;
-    let [_, ny, nz] = coarse.dims;
     let half = 0.5 * auto.coarse_voxel_m;
     let mut region = [
         f64::INFINITY,
@@ -425,7 +424,7 @@ fn find_region(
     ];
     for (v, &label) in blobs.labels.iter().enumerate() {
         if kept(label) {
-            let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            let c = coarse.centre_of(v);
             for a in 0..3 {
                 region[2 * a] = region[2 * a].min(c[a] - half);
                 region[2 * a + 1] = region[2 * a + 1].max(c[a] + half);
@@ -457,10 +456,7 @@ fn coarse_image(
     pad_factor: usize,
     total: usize,
 ) -> (Vec<Complex32>, Option<Vec<f32>>) {
-    let image_of = |c: &Capture| {
-        let profiles = RangeProfiles::new(c, coarse, pad_factor);
-        backproject(c, coarse, &profiles, None)
-    };
+    let image_of = |c: &Capture| image_on(c, coarse, pad_factor);
     let drawn = sub.antennas();
     if drawn >= total || drawn < 2 * SUBSET_GROUPS {
         return (image_of(sub), None);
@@ -500,6 +496,12 @@ fn coarse_image(
     (image, Some(standard_error))
 }
 
+/// Backprojection of `capture` on `grid`.
+fn image_on(capture: &Capture, grid: &VoxelGrid, pad_factor: usize) -> Vec<Complex32> {
+    let profiles = RangeProfiles::new(capture, grid, pad_factor);
+    backproject(capture, grid, &profiles, None)
+}
+
 /// Lateral size of the cells of antennas the voxels beyond the footprint are imaged from, metres.
 const CELL_M: f64 = 0.01;
 
@@ -521,23 +523,18 @@ fn beyond_footprint_unambiguous(
     footprint: [f64; 4],
     image: &mut [Complex32],
 ) {
-    let sines = unambiguous_sines(sub);
-    if sines.iter().all(|&s| s >= 1.0) {
-        return;
-    }
-    let [_, ny, nz] = coarse.dims;
-    let centre = |v: usize| coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+    let centres = sub.centres_m();
+    let sines = unambiguous_sines(&sub.plan, &centres);
     let beyond: Vec<usize> = (0..coarse.len())
         .filter(|&v| {
-            let c = centre(v);
+            let c = coarse.centre_of(v);
             c[0] < footprint[0] || c[0] > footprint[1] || c[1] < footprint[2] || c[1] > footprint[3]
         })
         .collect();
     // The steepest view of a voxel along an axis is from the aperture's far side there.
-    let centres = sub.centres_m();
-    let plane_z_m = centres.iter().map(|c| c[2]).sum::<f64>() / centres.len().max(1) as f64;
+    let plane_z_m = aperture_z_m(sub);
     let seen_steeply = |v: usize| {
-        let p = centre(v);
+        let p = coarse.centre_of(v);
         let depth_m = plane_z_m - p[2];
         [
             (0, footprint[0], footprint[1]),
@@ -571,12 +568,10 @@ fn beyond_footprint_unambiguous(
                 centroid[k] += centres[a][k] / antennas.len() as f64;
             }
         }
-        let cell = sub.subset(antennas);
-        let profiles = RangeProfiles::new(&cell, coarse, pad_factor);
-        let cell_image = backproject(&cell, coarse, &profiles, None);
+        let cell_image = image_on(&sub.subset(antennas), coarse, pad_factor);
         let share = (antennas.len() as f64 / total) as f32;
         for &v in &beyond {
-            let p = centre(v);
+            let p = coarse.centre_of(v);
             let offset_m = [0, 1, 2].map(|k| p[k] - centroid[k]);
             let range_m = offset_m.iter().map(|o| o * o).sum::<f64>().sqrt();
             if (0..2).all(|k| offset_m[k].abs() <= sines[k] * range_m) {
@@ -590,13 +585,11 @@ fn beyond_footprint_unambiguous(
 /// centres sample an echo without ambiguity: λ/(4·pitch) at the sweep's shortest wavelength,
 /// where the pitch is the median step between successive distinct coordinates (1 for a
 /// random or λ/4 aperture, whose steps are finer).
-fn unambiguous_sines(capture: &Capture) -> [f64; 2] {
-    let plan = capture.plan;
+fn unambiguous_sines(plan: &FrequencyPlan, centres: &[[f64; 3]]) -> [f64; 2] {
     let highest_hz = plan
         .frequency_hz(0)
         .max(plan.frequency_hz(plan.samples_per_chirp.saturating_sub(1)));
     let wavelength_m = SPEED_OF_LIGHT_M_PER_S / highest_hz;
-    let centres = capture.centres_m();
     [0, 1].map(|k| {
         let mut coords: Vec<f64> = centres.iter().map(|c| c[k]).collect();
         coords.sort_unstable_by(f64::total_cmp);
@@ -835,7 +828,7 @@ mod tests {
              [[object]]\nshape = \"plate\"\nsize_m = [0.04, 0.04]\nposition_m = [-0.07, 0.0, 0.02]\n\
              [[object]]\nshape = \"sphere\"\nradius_m = 0.05\nposition_m = [0.07, 0.0, -0.03]\n";
         let capture = simulated(text);
-        let sines = unambiguous_sines(&capture);
+        let sines = unambiguous_sines(&capture.plan, &capture.centres_m());
         // 2 mm steps at the sweep's top, 80.5 GHz (λ 3.72 mm): 0.466, about 28°.
         for s in sines {
             assert!((s - 0.4656).abs() < 0.001, "{sines:?}");
@@ -862,9 +855,8 @@ mod tests {
         )
         .expect("a grid");
         let (mut image, _) = coarse_image(&capture, &coarse, 4, capture.antennas());
-        let [_, ny, nz] = coarse.dims;
         let beyond = |v: usize| {
-            let c = coarse.centre(v / (ny * nz), (v / nz) % ny, v % nz);
+            let c = coarse.centre_of(v);
             c[0] < x0 || c[0] > x1 || c[1] < y0 || c[1] > y1
         };
         // The strongest voxel beyond the footprint, relative to the image's peak.
@@ -905,7 +897,7 @@ mod tests {
         // antenna sees a voxel 3 cm beyond this 8×8 cm aperture's edge from 30 cm above it.
         let aperture = "width_m = 0.08\nheight_m = 0.08\nspacing_m = 0.000967\nz_m = 0.3";
         let capture = plate_under(aperture, 256, "");
-        let sines = unambiguous_sines(&capture);
+        let sines = unambiguous_sines(&capture.plan, &capture.centres_m());
         for s in sines {
             assert!(s > 0.95 && s < 1.0, "{sines:?}");
         }
