@@ -96,32 +96,39 @@ pub fn label_6_keyed(keys: &[u32], dims: [usize; 3], min_voxels: usize) -> Compo
 /// `components` without those that have no voxel where `reaches(flat index)` holds, relabelled
 /// 1…m in their old order (still the order of each one's first voxel).
 pub fn retain_reaching(components: Components, reaches: impl Fn(usize) -> bool) -> Components {
-    let Components { mut labels, sizes } = components;
-    let mut kept = vec![false; sizes.len()];
-    for (v, &l) in labels.iter().enumerate() {
+    let mut kept = vec![false; components.sizes.len()];
+    for (v, &l) in components.labels.iter().enumerate() {
         if l != 0 && !kept[l as usize - 1] && reaches(v) {
             kept[l as usize - 1] = true;
         }
     }
-    if kept.iter().all(|&k| k) {
-        return Components { labels, sizes };
-    }
-    let mut new_label = vec![0u32; sizes.len()];
-    let mut new_sizes = Vec::new();
-    for (k, &size) in sizes.iter().enumerate() {
-        if kept[k] {
-            new_sizes.push(size);
-            new_label[k] = new_sizes.len() as u32;
+    components.retain(&kept)
+}
+
+impl Components {
+    /// The components whose `keep` is true, relabelled 1…m in their old order.
+    pub fn retain(self, keep: &[bool]) -> Components {
+        let Components { mut labels, sizes } = self;
+        if keep.iter().all(|&k| k) {
+            return Components { labels, sizes };
         }
-    }
-    for l in &mut labels {
-        if *l != 0 {
-            *l = new_label[*l as usize - 1];
+        let mut new_label = vec![0u32; sizes.len()];
+        let mut new_sizes = Vec::new();
+        for (k, &size) in sizes.iter().enumerate() {
+            if keep[k] {
+                new_sizes.push(size);
+                new_label[k] = new_sizes.len() as u32;
+            }
         }
-    }
-    Components {
-        labels,
-        sizes: new_sizes,
+        for l in &mut labels {
+            if *l != 0 {
+                *l = new_label[*l as usize - 1];
+            }
+        }
+        Components {
+            labels,
+            sizes: new_sizes,
+        }
     }
 }
 

@@ -318,6 +318,10 @@ pub struct ReconConfig {
     /// The residual image's voxels join only where its |S| is at least this fraction of the
     /// first image's peak (0.0316: −30 dB).
     pub hidden_floor: f64,
+    /// Drop a component that lies under a brighter one, in the columns they share, at least
+    /// 0.8 range bins down and 10 dB under it: that echo's range sidelobe (`recon/sidelobe.rs`).
+    /// On by default; false keeps every component of Li's mask.
+    pub drop_sidelobes: bool,
     pub integration: Integration,
     pub optimisation: Optimisation,
     pub auto_volume: AutoVolume,
@@ -386,6 +390,7 @@ impl Default for ReconConfig {
             split_jump_m: 0.004,
             hidden_surfaces: true,
             hidden_floor: 0.0316,
+            drop_sidelobes: true,
             integration: Integration::LeastSquares,
             optimisation: Optimisation::default(),
             auto_volume: AutoVolume::default(),

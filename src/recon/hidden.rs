@@ -196,27 +196,7 @@ pub fn keep_above(
         components: is_hidden.iter().filter(|&&h| h).count(),
         kept: (0..n).filter(|&k| is_hidden[k] && keep[k]).count(),
     };
-    let Components { mut labels, sizes } = labelled;
-    let mut renumber = vec![0u32; n];
-    let mut kept_sizes = Vec::new();
-    for k in 0..n {
-        if keep[k] {
-            kept_sizes.push(sizes[k]);
-            renumber[k] = kept_sizes.len() as u32;
-        }
-    }
-    labels.par_iter_mut().for_each(|l| {
-        if *l != 0 {
-            *l = renumber[*l as usize - 1];
-        }
-    });
-    (
-        Components {
-            labels,
-            sizes: kept_sizes,
-        },
-        summary,
-    )
+    (labelled.retain(&keep), summary)
 }
 
 #[cfg(test)]

@@ -30,6 +30,7 @@ pub mod output;
 pub mod pipeline;
 pub mod rma;
 pub mod rsdf;
+pub mod sidelobe;
 pub mod split;
 pub mod subset;
 pub mod threshold;

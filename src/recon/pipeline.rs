@@ -31,6 +31,7 @@ use super::near_echo::{NearEchoCanceller, without_near_echoes, without_strongest
 use super::normals::{Candidates, normal_field};
 use super::rma::{RmaReport, rma_image};
 use super::rsdf::{ComponentField, integrate_bfs, integrate_least_squares};
+use super::sidelobe::{SidelobeSummary, drop_sidelobes};
 use super::split::{SplitSummary, split_at_transitions};
 use super::trace::SampledField;
 use super::volume::{AutoReport, Core, VolumeError, select};
@@ -110,6 +111,9 @@ pub struct Summary {
     /// What the search for surfaces hidden in a brighter one's range lobe added, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hidden: Option<HiddenSummary>,
+    /// The components dropped as a brighter one's range sidelobe, when the rule ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sidelobes: Option<SidelobeSummary>,
     pub components: Vec<ComponentSummary>,
     pub optimisation: Option<OptimisationReport>,
     pub interferometric_reference_z_m: Option<f64>,
@@ -563,6 +567,7 @@ fn start_summary(capture: &Capture, config: &ReconConfig, imaged: &Imaged) -> (S
         mask: None,
         split: None,
         hidden: None,
+        sidelobes: None,
         components: Vec::new(),
         optimisation: None,
         interferometric_reference_z_m: None,
@@ -733,6 +738,32 @@ fn mmnorm_fields(
         );
         labelled = kept;
         summary.hidden = Some(report);
+    }
+    if config.drop_sidelobes {
+        let skip = hidden
+            .as_deref()
+            .map_or_else(Vec::new, |hidden| flagged_components(&labelled, hidden));
+        let bin_voxels = capture.plan.range_bin_m() / grid.voxel_m;
+        let (kept, report) = drop_sidelobes(
+            labelled,
+            &skip,
+            magnitude,
+            grid.dims,
+            grid.voxel_m,
+            bin_voxels,
+        );
+        for d in &report.dropped {
+            tracing::info!(
+                "component {} ({} voxels) dropped as the range sidelobe of component {}: {:.1} cm under it, {:.1} dB",
+                d.component,
+                d.voxels,
+                d.under,
+                d.depth_m * 100.0,
+                d.level_db
+            );
+        }
+        labelled = kept;
+        summary.sidelobes = Some(report);
     }
     summary.mask = Some(MaskSummary {
         normal_floor: config.normal_floor,
