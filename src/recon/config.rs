@@ -318,8 +318,8 @@ pub struct ReconConfig {
     /// The residual image's voxels join only where its |S| is at least this fraction of the
     /// first image's peak (0.0316: −30 dB).
     pub hidden_floor: f64,
-    /// Drop a component that lies under a brighter one, in the columns they share, at least
-    /// 0.8 range bins down and 10 dB under it: that echo's range sidelobe (`recon/sidelobe.rs`).
+    /// Drop a component that lies under a brighter one, in the columns they share, 0.8–3 range
+    /// bins down and at least 6 dB under it: that echo's range sidelobe (`recon/sidelobe.rs`).
     /// On by default; false keeps every component of Li's mask.
     pub drop_sidelobes: bool,
     pub integration: Integration,

@@ -69,7 +69,7 @@ pub struct DroppedComponent {
 #[derive(Default, Clone, Copy)]
 struct Shared {
     voxels: usize,
-    /// Σ |S| and Σ |S|·z of the lower candidate's voxels in the shared columns.
+    /// Σ |S| and Σ |S|·z of the judged component's voxels in the shared columns.
     weight: f64,
     moment: f64,
     /// Σ |S| and Σ |S|·z of the other component's voxels in those columns, and its peak there.
