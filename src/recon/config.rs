@@ -239,6 +239,11 @@ pub struct Optimisation {
     /// default: it helped under one physics model and hurt under the other) takes the cost's
     /// minimum as the paper does.
     pub evidence_t: f64,
+    /// A component whose cost is least on the first or the last of its candidates (at least
+    /// three) takes the candidate nearest its |S|-weighted level instead: the cost falls
+    /// towards the edge of the search and has no minimum inside it (`recon::isosurface`).
+    /// False takes the cost's least candidate as the paper does.
+    pub edge_fallback: bool,
 }
 
 impl Default for Optimisation {
@@ -259,6 +264,7 @@ impl Default for Optimisation {
             component_gains: ComponentGains::Fitted,
             level_band_resolutions: 0.25,
             evidence_t: 0.0,
+            edge_fallback: true,
         }
     }
 }

@@ -303,6 +303,9 @@ pub struct ComponentChoice {
     /// candidate nearest the prior (None when they are the same candidate); below
     /// `evidence_t` the prior's candidate was kept.
     pub evidence_t: Option<f64>,
+    /// The cost was least on the first or the last candidate, and the candidate nearest the
+    /// prior was taken instead (`edge_fallback`).
+    pub edge_minimum: bool,
 }
 
 /// One antenna's range window: first padded bin, its measured magnitudes (L2-normalised) and,
@@ -681,13 +684,23 @@ impl CandidateSpectra {
     }
 }
 
+/// Whether candidate `c` of `count` is the first or the last of at least three. A cost least
+/// there falls towards the edge of the search (the RSDF's range or the level band) and has no
+/// minimum inside it: on the suites, a rim whose echo comes from its edges (under point
+/// scatterers, 8 mm high) and a pitcher's curved top whose cost falls monotonically across the
+/// band (6–9 mm off). With fewer than three candidates every choice is an edge.
+pub fn on_edge(c: usize, count: usize) -> bool {
+    count >= 3 && (c == 0 || c + 1 == count)
+}
+
 /// Runs the optimisation for `fields` (one per component, NaN outside it) with `candidates[n]`;
 /// `hidden[n]` says whether component `n` was found under a brighter surface's range lobe
 /// (empty: none was), which sets how it draws its antennas (`subset.rs`).
 ///
-/// With `priors` (one level per component, the |S|-weighted one), a component leaves the
-/// candidate nearest its prior only on evidence: a [`paired_t`] of at least
-/// `opts.evidence_t`.
+/// With `priors` (one level per component, the |S|-weighted one): a component whose cost is
+/// least on an edge of its candidates ([`on_edge`]) takes the candidate nearest its prior when
+/// `opts.edge_fallback` is set, and a component leaves the candidate nearest its prior only on
+/// evidence, a [`paired_t`] of at least `opts.evidence_t`, when that is above 0.
 pub fn optimise(
     capture: &Capture,
     fields: &[SampledField],
@@ -701,7 +714,16 @@ pub fn optimise(
     let counts = problem.counts();
     let (mut choice, sweeps) = problem.descend(opts.max_sweeps);
     let mut evidence_t = vec![None; counts.len()];
-    if let Some(priors) = priors {
+    let mut edge_minimum = vec![false; counts.len()];
+    if let Some(priors) = priors.filter(|_| opts.edge_fallback) {
+        for n in 0..counts.len() {
+            if on_edge(choice[n], counts[n]) {
+                choice[n] = nearest_candidate(&problem.candidates[n], priors[n]).unwrap_or(0);
+                edge_minimum[n] = true;
+            }
+        }
+    }
+    if let Some(priors) = priors.filter(|_| opts.evidence_t > 0.0) {
         for n in 0..counts.len() {
             let nearest = nearest_candidate(&problem.candidates[n], priors[n]).unwrap_or(0);
             if nearest == choice[n] {
@@ -731,6 +753,7 @@ pub fn optimise(
                 chosen: choice[n],
                 constant: problem.candidates[n][choice[n]],
                 evidence_t: evidence_t[n],
+                edge_minimum: edge_minimum[n],
             }
         })
         .collect();
@@ -1104,6 +1127,14 @@ mod tests {
             .map(|(i, _)| i)
             .unwrap();
         (capture, field, levels, truth)
+    }
+
+    /// Only the first and the last of three or more candidates are edges.
+    #[test]
+    fn only_the_ends_of_three_or_more_candidates_are_edges() {
+        assert!(on_edge(0, 3) && on_edge(2, 3) && on_edge(12, 13));
+        assert!(!on_edge(1, 3) && !on_edge(6, 13));
+        assert!(!on_edge(0, 1) && !on_edge(0, 2) && !on_edge(1, 2));
     }
 
     /// The sphere alone: the optimiser picks the true level.

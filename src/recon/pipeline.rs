@@ -883,8 +883,9 @@ fn mmnorm_points(
         Isosurface::Optimized => {
             let o = &config.optimisation;
             let band_m = o.level_band_resolutions * capture.plan.range_bin_m();
-            // The |S|-weighted levels, needed by the band and the evidence test alone.
-            let priors: Vec<f64> = if band_m > 0.0 || o.evidence_t > 0.0 {
+            // The |S|-weighted levels, needed by the band, the edge fallback and the evidence
+            // test alone.
+            let priors: Vec<f64> = if band_m > 0.0 || o.evidence_t > 0.0 || o.edge_fallback {
                 (0..fields.len()).map(weighted).collect()
             } else {
                 Vec::new()
@@ -896,7 +897,7 @@ fn mmnorm_points(
             } else {
                 candidate_sets.clone()
             };
-            let priors = (o.evidence_t > 0.0).then_some(priors.as_slice());
+            let priors = (o.evidence_t > 0.0 || o.edge_fallback).then_some(priors.as_slice());
             let report = optimise(capture, fields, &banded, hidden, priors, o, quiet)?;
             let c = report.components.iter().map(|c| c.constant).collect();
             summary.optimisation = Some(report);
