@@ -720,8 +720,10 @@ fn mmnorm_fields(
         labelled = label(min_voxels);
         used_fallback = true;
     }
+    // One range bin (c/2B) in voxels: the unit of the hidden search's rise and of the sidelobes.
+    let bin_voxels = capture.plan.range_bin_m() / grid.voxel_m;
     if let (Some(hidden), Some(residual)) = (&hidden, &imaged.hidden_magnitude) {
-        let rise_voxels = RISE_RANGE_BINS * capture.plan.range_bin_m() / grid.voxel_m;
+        let rise_voxels = RISE_RANGE_BINS * bin_voxels;
         let (kept, report) = keep_above(
             labelled,
             hidden,
@@ -743,7 +745,6 @@ fn mmnorm_fields(
         let skip = hidden
             .as_deref()
             .map_or_else(Vec::new, |hidden| flagged_components(&labelled, hidden));
-        let bin_voxels = capture.plan.range_bin_m() / grid.voxel_m;
         let (kept, report) = drop_sidelobes(
             labelled,
             &skip,
@@ -884,8 +885,9 @@ fn mmnorm_points(
             let o = &config.optimisation;
             let band_m = o.level_band_resolutions * capture.plan.range_bin_m();
             // The |S|-weighted levels, needed by the band, the edge fallback and the evidence
-            // test alone.
-            let priors: Vec<f64> = if band_m > 0.0 || o.evidence_t > 0.0 || o.edge_fallback {
+            // test alone; the optimiser gets them for the latter two.
+            let judged_by_prior = o.evidence_t > 0.0 || o.edge_fallback;
+            let priors: Vec<f64> = if band_m > 0.0 || judged_by_prior {
                 (0..fields.len()).map(weighted).collect()
             } else {
                 Vec::new()
@@ -897,7 +899,7 @@ fn mmnorm_points(
             } else {
                 candidate_sets.clone()
             };
-            let priors = (o.evidence_t > 0.0 || o.edge_fallback).then_some(priors.as_slice());
+            let priors = judged_by_prior.then_some(priors.as_slice());
             let report = optimise(capture, fields, &banded, hidden, priors, o, quiet)?;
             let c = report.components.iter().map(|c| c.constant).collect();
             summary.optimisation = Some(report);

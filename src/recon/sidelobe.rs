@@ -26,7 +26,7 @@
 //! Neither the paper nor the authors' code does this; `drop_sidelobes = false` in the
 //! reconstruction config turns it off.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 use serde::Serialize;
 
@@ -100,7 +100,7 @@ pub fn drop_sidelobes(
         }
     }
     // Per column: each judged component's voxel count, Σ|S|, Σ|S|·z and peak.
-    let mut pairs: HashMap<(usize, usize), Shared> = HashMap::new();
+    let mut pairs: BTreeMap<(usize, usize), Shared> = BTreeMap::new();
     let mut in_column: Vec<(usize, usize, f64, f64, f32)> = Vec::new();
     for column in labelled.labels.chunks(nz).zip(magnitude.chunks(nz)) {
         in_column.clear();
@@ -134,11 +134,9 @@ pub fn drop_sidelobes(
     }
     let sidelobe = 10f32.powf(-LEVEL_DB / 20.0);
     let mut dropped: Vec<DroppedComponent> = Vec::new();
-    let mut keys: Vec<_> = pairs.keys().copied().collect();
-    keys.sort_unstable();
-    for (k, j) in keys {
-        let s = pairs[&(k, j)];
-        if dropped.iter().any(|d| d.component == k + 1) || s.weight <= 0.0 {
+    let mut keep = vec![true; n];
+    for (&(k, j), s) in &pairs {
+        if !keep[k] || s.weight <= 0.0 {
             continue;
         }
         let depth_voxels = s.other_moment / s.other_weight - s.moment / s.weight;
@@ -148,6 +146,7 @@ pub fn drop_sidelobes(
             && (DEPTH_BINS[0]..=DEPTH_BINS[1]).contains(&depth_bins)
             && peak[k] <= s.other_peak * sidelobe
         {
+            keep[k] = false;
             dropped.push(DroppedComponent {
                 component: k + 1,
                 voxels: labelled.sizes[k],
@@ -157,9 +156,6 @@ pub fn drop_sidelobes(
             });
         }
     }
-    let keep: Vec<bool> = (0..n)
-        .map(|k| !dropped.iter().any(|d| d.component == k + 1))
-        .collect();
     (labelled.retain(&keep), SidelobeSummary { dropped })
 }
 
@@ -191,17 +187,19 @@ mod tests {
         (label_6(&mask, [12, 1, NZ], 1), magnitude)
     }
 
+    /// [`drop_sidelobes`] on a grid of [`scene`]'s shape, 5 mm voxels and [`BIN`].
+    fn run(
+        labelled: Components,
+        skip: &[bool],
+        magnitude: &[f32],
+    ) -> (Components, SidelobeSummary) {
+        drop_sidelobes(labelled, skip, magnitude, [12, 1, NZ], 0.005, BIN)
+    }
+
     fn dropped(blocks: &[(std::ops::Range<usize>, std::ops::Range<usize>, f32)]) -> Vec<usize> {
         let (labelled, magnitude) = scene(blocks);
         let n = labelled.sizes.len();
-        let (kept, summary) = drop_sidelobes(
-            labelled,
-            &vec![false; n],
-            &magnitude,
-            [12, 1, NZ],
-            0.005,
-            BIN,
-        );
+        let (kept, summary) = run(labelled, &vec![false; n], &magnitude);
         assert_eq!(kept.sizes.len(), n - summary.dropped.len());
         summary.dropped.iter().map(|d| d.voxels).collect()
     }
@@ -210,8 +208,7 @@ mod tests {
     fn a_weak_sheet_a_sidelobe_under_a_bright_top_is_dropped() {
         // 1.4 bins under the top's centre (z 51.5), 10.5 dB under it.
         let (labelled, magnitude) = scene(&[(1..7, 37..39, 3.0)]);
-        let (kept, summary) =
-            drop_sidelobes(labelled, &[false; 2], &magnitude, [12, 1, NZ], 0.005, BIN);
+        let (kept, summary) = run(labelled, &[false; 2], &magnitude);
         assert_eq!(kept.sizes, vec![32]);
         let d = &summary.dropped[0];
         assert_eq!((d.component, d.voxels, d.under), (2, 12, 1));
@@ -241,24 +238,10 @@ mod tests {
     #[test]
     fn skipped_components_are_neither_judged_nor_a_reference() {
         let (labelled, magnitude) = scene(&[(1..7, 37..39, 3.0)]);
-        let (kept, summary) = drop_sidelobes(
-            labelled.clone(),
-            &[true, false],
-            &magnitude,
-            [12, 1, NZ],
-            0.005,
-            BIN,
-        );
+        let (kept, summary) = run(labelled.clone(), &[true, false], &magnitude);
         assert!(summary.dropped.is_empty());
         assert_eq!(kept, labelled);
-        let (kept, summary) = drop_sidelobes(
-            labelled,
-            &[false, true],
-            &magnitude,
-            [12, 1, NZ],
-            0.005,
-            BIN,
-        );
+        let (kept, summary) = run(labelled, &[false, true], &magnitude);
         assert!(summary.dropped.is_empty());
         assert_eq!(kept.sizes.len(), 2);
     }

@@ -525,16 +525,16 @@ fn beyond_footprint_unambiguous(
 ) {
     let centres = sub.centres_m();
     let sines = unambiguous_sines(&sub.plan, &centres);
-    let beyond: Vec<usize> = (0..coarse.len())
-        .filter(|&v| {
-            let c = coarse.centre_of(v);
+    // The voxels beyond the footprint, with their centres.
+    let beyond: Vec<(usize, [f64; 3])> = (0..coarse.len())
+        .map(|v| (v, coarse.centre_of(v)))
+        .filter(|(_, c)| {
             c[0] < footprint[0] || c[0] > footprint[1] || c[1] < footprint[2] || c[1] > footprint[3]
         })
         .collect();
     // The steepest view of a voxel along an axis is from the aperture's far side there.
     let plane_z_m = aperture_z_m(sub);
-    let seen_steeply = |v: usize| {
-        let p = coarse.centre_of(v);
+    let seen_steeply = |p: &[f64; 3]| {
         let depth_m = plane_z_m - p[2];
         [
             (0, footprint[0], footprint[1]),
@@ -546,7 +546,7 @@ fn beyond_footprint_unambiguous(
             lateral_m > sines[k] * lateral_m.hypot(depth_m)
         })
     };
-    if !beyond.iter().any(|&v| seen_steeply(v)) {
+    if !beyond.iter().any(|(_, p)| seen_steeply(p)) {
         return;
     }
     let mut cells: std::collections::BTreeMap<(i64, i64), Vec<usize>> = Default::default();
@@ -557,7 +557,7 @@ fn beyond_footprint_unambiguous(
         );
         cells.entry(key).or_default().push(a);
     }
-    for &v in &beyond {
+    for &(v, _) in &beyond {
         image[v] = Complex32::new(0.0, 0.0);
     }
     let total = sub.antennas() as f64;
@@ -570,8 +570,7 @@ fn beyond_footprint_unambiguous(
         }
         let cell_image = image_on(&sub.subset(antennas), coarse, pad_factor);
         let share = (antennas.len() as f64 / total) as f32;
-        for &v in &beyond {
-            let p = coarse.centre_of(v);
+        for &(v, p) in &beyond {
             let offset_m = [0, 1, 2].map(|k| p[k] - centroid[k]);
             let range_m = offset_m.iter().map(|o| o * o).sum::<f64>().sqrt();
             if (0..2).all(|k| offset_m[k].abs() <= sines[k] * range_m) {
