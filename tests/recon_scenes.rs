@@ -335,8 +335,7 @@ fn median_z(points: &[[f64; 3]], x_m: std::ops::Range<f64>) -> f64 {
 /// Two flat tops 8 mm apart in height, side by side: closer than the 5 cm range resolution, so
 /// the image blurs them into one component, and both tops' normals point up, so its RSDF is one
 /// plane and one level (the paper's) leaves a top millimetres off. The split at the transition
-/// gives each top its own level under physical optics; under point scatterers the step is not
-/// split yet, and the test holds it to what one level gives. The hidden-surface search (on by
+/// gives each top its own level under both physics models. The hidden-surface search (on by
 /// default) may add nothing, and the tops must come back where they do without it. `objects`
 /// holds the low top over x < 0 at `low_m` and the high one over x > 0 at `low_m` + 8 mm.
 fn check_step(objects: &str, low_m: f64, label: &str) {
@@ -360,39 +359,29 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
             "{label}, {name}: {split:?}; top heights off by {:.1} and {:.1} mm",
             ours[0], ours[1]
         );
-        if physics.is_empty() {
-            assert!(
-                split.components_after > split.components_before,
-                "{label}, {name}: {split:?}"
-            );
-            // Points are voxel centres (2 mm): one voxel is the resolution.
-            assert!(
-                ours.iter().all(|e| *e <= 2.0 + 1e-9),
-                "{label}, {name}: tops off by {ours:?} mm"
-            );
-            // The paper's one level per component, once: the scene must need the split.
-            let one_level = again(ReconConfig {
-                split_transitions: false,
-                ..config(Method::Mmnorm)
-            });
-            let paper = error_mm(&one_level);
-            println!(
-                "{label}, {name}, one level per component: tops off by {:.1} and {:.1} mm",
-                paper[0], paper[1]
-            );
-            assert!(
-                paper.iter().any(|e| *e > 2.0 + 1e-9),
-                "{label}: one level per component already finds both tops ({paper:?} mm): the scene no longer tests the split"
-            );
-        } else {
-            // Under point scatterers the step is not split yet (its regions fall under a
-            // quarter of the component; issue 40 stays open on it): no top may be further off
-            // than half the step, as one level at the middle would leave it.
-            assert!(
-                ours.iter().all(|e| *e <= 4.0 + 1e-9),
-                "{label}, {name}: tops off by {ours:?} mm"
-            );
-        }
+        assert!(
+            split.components_after > split.components_before,
+            "{label}, {name}: {split:?}"
+        );
+        // Points are voxel centres (2 mm): one voxel is the resolution.
+        assert!(
+            ours.iter().all(|e| *e <= 2.0 + 1e-9),
+            "{label}, {name}: tops off by {ours:?} mm"
+        );
+        // The paper's one level per component, once: the scene must need the split.
+        let one_level = again(ReconConfig {
+            split_transitions: false,
+            ..config(Method::Mmnorm)
+        });
+        let paper = error_mm(&one_level);
+        println!(
+            "{label}, {name}, one level per component: tops off by {:.1} and {:.1} mm",
+            paper[0], paper[1]
+        );
+        assert!(
+            paper.iter().any(|e| *e > 2.0 + 1e-9),
+            "{label}, {name}: one level per component already finds both tops ({paper:?} mm): the scene no longer tests the split"
+        );
         // The hidden-surface search must leave the step alone: the other top lies inside the
         // strongest echo's range bin, so what the fit leaves of it is no surface.
         let found = s.hidden.clone().expect("the search ran (on by default)");

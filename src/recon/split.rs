@@ -11,10 +11,11 @@
 //! moves as the slopes predict. At a column where the depth `BASELINE_M` to one side and to the
 //! other differ by more than `jump_m` beyond the slopes' prediction, the column lies on a
 //! transition. The columns off every transition, grouped by face adjacency, form the component's
-//! regions; a region smaller than the smallest component or than [`MIN_REGION_SHARE`] of its
-//! component is not one, regions at the same depth (within `jump_m`) count as one, and the
-//! transition columns join the region nearest them. Each region becomes a component of its own, whose level the
-//! isosurface optimisation chooses jointly with the others' (Eq. 11–13), as before.
+//! regions. Regions at the same depth (within `jump_m`) form one level; a level whose regions
+//! together hold less than the smallest component or [`MIN_REGION_SHARE`] of the component is
+//! not one. A level's largest region, and any other holding the share alone, seed it; every
+//! other column joins the seed nearest it. Each level becomes a component of its own, whose
+//! level the isosurface optimisation chooses jointly with the others' (Eq. 11–13), as before.
 //!
 //! Where a normal is steeper than [`STEEP_NZ`] (about 73° from vertical) the predicted slope is
 //! too uncertain to judge a departure, and no transition is marked across it.
@@ -34,12 +35,16 @@ pub const STEEP_NZ: f64 = 0.3;
 /// top to the other over some 15 mm, so each side spans half of that.
 pub const BASELINE_M: f64 = 0.008;
 
-/// A region stands as a component of its own only when it holds at least this share of its
-/// component's voxels (and the smallest component's size). Region depths are compared as
-/// means, so on a tilted surface a small region near one end differs from the rest by the tilt;
-/// and a thin rim over a steep inner wall shows departures along its length, where cutting it
-/// into arcs leaves each arc too few antennas for the cost to place it. At a tenth, a 4.5 cm plate
-/// tilted 5° lost a fifth of itself to a component of its own (`tests/recon_scenes.rs`).
+/// A level (the regions at one depth) stands as a component of its own only when its regions
+/// hold at least this share of their component's voxels together (and the smallest component's
+/// size). Region depths are compared as means, so on a tilted surface a small region near one
+/// end differs from the rest by the tilt; and a thin rim over a steep inner wall shows
+/// departures along its length, where cutting it into arcs leaves each arc too few antennas for
+/// the cost to place it. At a tenth, a 4.5 cm plate tilted 5° lost a fifth of itself to a
+/// component of its own (`tests/recon_scenes.rs`). The regions of a level count together: under
+/// point scatterers the edges of a box's top radiate to every antenna and frame the top with
+/// transitions, cutting it into a strip along each edge and the middle, none of which alone
+/// holds a quarter (`a_step_gets_a_level_on_each_side`).
 pub const MIN_REGION_SHARE: f64 = 0.25;
 
 /// What the split did.
@@ -216,28 +221,47 @@ fn regions(
         }
     }
     let depth: Vec<f64> = sums.iter().map(|&(z, w)| z / w).collect();
-    // The large regions, those at the same depth (within the jump) counted as one: a surface
-    // that a spurious transition crosses is not split.
+    // Regions at the same depth (within the jump) form one level, the largest region setting
+    // it: a surface that spurious transitions cut into pieces is not split. A level stands when
+    // its regions together hold the share ([`MIN_REGION_SHARE`]). Its largest region, and any
+    // other holding the share alone, seed it; the rest join the nearest seed with the
+    // transition columns. A wall between two tops is a small region whose depth lies between
+    // theirs: counted into the nearer top's level as a seed, it pulled that top's level 6 mm
+    // (`two_plates_joined_by_a_wall_get_a_level_each`).
     let total: usize = cols.iter().flatten().map(|c| c.voxels).sum();
     let floor = min_voxels.max((MIN_REGION_SHARE * total as f64).ceil() as usize);
-    let large: Vec<usize> = (0..sizes.len())
-        .filter(|&k| sizes[k] >= floor && depth[k].is_finite())
-        .collect();
-    let mut renumber: Vec<Option<u32>> = vec![None; sizes.len()];
-    let mut levels: Vec<f64> = Vec::new();
-    for &k in &large {
+    let mut by_size: Vec<usize> = (0..sizes.len()).filter(|&k| depth[k].is_finite()).collect();
+    by_size.sort_by_key(|&k| std::cmp::Reverse(sizes[k]));
+    // Per level: its depth, its regions' voxels and its largest region.
+    let mut levels: Vec<(f64, usize, usize)> = Vec::new();
+    let mut level_of: Vec<Option<usize>> = vec![None; sizes.len()];
+    for &k in &by_size {
         let same = levels
             .iter()
-            .position(|&d| (d - depth[k]).abs() <= jump_voxels);
-        renumber[k] = Some(match same {
-            Some(i) => i as u32,
-            None => {
-                levels.push(depth[k]);
-                levels.len() as u32 - 1
-            }
+            .position(|&(d, _, _)| (d - depth[k]).abs() <= jump_voxels);
+        let i = same.unwrap_or_else(|| {
+            levels.push((depth[k], 0, k));
+            levels.len() - 1
         });
+        levels[i].1 += sizes[k];
+        level_of[k] = Some(i);
     }
-    if levels.len() < 2 {
+    let mut kept_id: Vec<Option<u32>> = vec![None; levels.len()];
+    let mut kept = 0u32;
+    for (i, &(_, voxels, _)) in levels.iter().enumerate() {
+        if voxels >= floor {
+            kept_id[i] = Some(kept);
+            kept += 1;
+        }
+    }
+    let renumber: Vec<Option<u32>> = (0..sizes.len())
+        .map(|k| {
+            let i = level_of[k]?;
+            let seeds = sizes[k] >= floor || levels[i].2 == k;
+            kept_id[i].filter(|_| seeds)
+        })
+        .collect();
+    if kept < 2 {
         return cols.iter().map(|c| c.map(|_| 0)).collect();
     }
     for r in &mut region {
@@ -328,5 +352,28 @@ mod tests {
         // A 24-column ledge, 16 columns (27 %) off the transition, is.
         let (c, m, n) = scene(|x| if x < 36 { 15.0 } else { 23.0 }, |_| [0.0, 0.0, 1.0]);
         assert_eq!(split(&c, &m, &n).sizes.len(), 2);
+    }
+
+    #[test]
+    fn pieces_at_one_depth_count_together_towards_the_share() {
+        // A two-column rib 8 voxels high at x = 18..19 marks transitions 8 columns to each side
+        // of it, so the low top falls into two pieces off the transitions (x < 10 and
+        // 12..22), each under a quarter of the component and together over it.
+        let surface = |x: usize| match x {
+            18 | 19 => 23.0,
+            x if x < 30 => 15.0,
+            _ => 23.0,
+        };
+        let (c, m, n) = scene(surface, |_| [0.0, 0.0, 1.0]);
+        let s = split(&c, &m, &n);
+        assert_eq!(s.sizes.len(), 2, "{:?}", s.sizes);
+        let [_, ny, nz] = DIMS;
+        let label_at = |x: usize| s.labels[(x * ny + 10) * nz + 15];
+        assert_eq!(
+            label_at(5),
+            label_at(15),
+            "the low top's pieces are one level"
+        );
+        assert_ne!(label_at(5), s.labels[(59 * ny + 10) * nz + 23]);
     }
 }
