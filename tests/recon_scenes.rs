@@ -352,9 +352,16 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
             ]
         };
         let ours = error_mm(&case.recon);
-        // The same capture reconstructed with other parameters.
-        let again =
-            |recon_config: ReconConfig| reconstruct(&case.capture, &recon_config, true).unwrap();
+        // The tops' errors of the same capture reconstructed with other parameters.
+        let again = |what: &str, recon_config: ReconConfig| {
+            let recon = reconstruct(&case.capture, &recon_config, true).unwrap();
+            let e = error_mm(&recon);
+            println!(
+                "{label}, {name}, {what}: tops off by {:.1} and {:.1} mm",
+                e[0], e[1]
+            );
+            e
+        };
         println!(
             "{label}, {name}: {split:?}; top heights off by {:.1} and {:.1} mm",
             ours[0], ours[1]
@@ -369,14 +376,12 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
             "{label}, {name}: tops off by {ours:?} mm"
         );
         // The paper's one level per component, once: the scene must need the split.
-        let one_level = again(ReconConfig {
-            split_transitions: false,
-            ..config(Method::Mmnorm)
-        });
-        let paper = error_mm(&one_level);
-        println!(
-            "{label}, {name}, one level per component: tops off by {:.1} and {:.1} mm",
-            paper[0], paper[1]
+        let paper = again(
+            "one level per component",
+            ReconConfig {
+                split_transitions: false,
+                ..config(Method::Mmnorm)
+            },
         );
         assert!(
             paper.iter().any(|e| *e > 2.0 + 1e-9),
@@ -385,14 +390,13 @@ fn check_step(objects: &str, low_m: f64, label: &str) {
         // The hidden-surface search must leave the step alone: the other top lies inside the
         // strongest echo's range bin, so what the fit leaves of it is no surface.
         let found = s.hidden.clone().expect("the search ran (on by default)");
-        let without = again(ReconConfig {
-            hidden_surfaces: false,
-            ..config(Method::Mmnorm)
-        });
-        let without_hidden = error_mm(&without);
-        println!(
-            "{label}, {name}, hidden surfaces: {found:?}; without the search the tops are off by {:.1} and {:.1} mm",
-            without_hidden[0], without_hidden[1]
+        println!("{label}, {name}, hidden surfaces: {found:?}");
+        let without_hidden = again(
+            "without the hidden-surface search",
+            ReconConfig {
+                hidden_surfaces: false,
+                ..config(Method::Mmnorm)
+            },
         );
         assert_eq!(found.kept, 0, "{label}, {name}: {found:?}");
         assert_eq!(ours, without_hidden, "{label}, {name}");

@@ -140,6 +140,16 @@ pub fn split_at_transitions(
     (split, summary)
 }
 
+/// The regions of one component at one depth.
+struct Level {
+    /// The |S|²-weighted depth of its largest region, voxels.
+    depth: f64,
+    /// Its regions' voxels.
+    voxels: usize,
+    /// Its largest region.
+    largest: usize,
+}
+
 /// The region (0…) of each column of one component (None where the component has no column).
 fn regions(
     cols: &[Option<Column>],
@@ -232,24 +242,27 @@ fn regions(
     let floor = min_voxels.max((MIN_REGION_SHARE * total as f64).ceil() as usize);
     let mut by_size: Vec<usize> = (0..sizes.len()).filter(|&k| depth[k].is_finite()).collect();
     by_size.sort_by_key(|&k| std::cmp::Reverse(sizes[k]));
-    // Per level: its depth, its regions' voxels and its largest region.
-    let mut levels: Vec<(f64, usize, usize)> = Vec::new();
+    let mut levels: Vec<Level> = Vec::new();
     let mut level_of: Vec<Option<usize>> = vec![None; sizes.len()];
     for &k in &by_size {
         let same = levels
             .iter()
-            .position(|&(d, _, _)| (d - depth[k]).abs() <= jump_voxels);
+            .position(|l| (l.depth - depth[k]).abs() <= jump_voxels);
         let i = same.unwrap_or_else(|| {
-            levels.push((depth[k], 0, k));
+            levels.push(Level {
+                depth: depth[k],
+                voxels: 0,
+                largest: k,
+            });
             levels.len() - 1
         });
-        levels[i].1 += sizes[k];
+        levels[i].voxels += sizes[k];
         level_of[k] = Some(i);
     }
     let mut kept_id: Vec<Option<u32>> = vec![None; levels.len()];
     let mut kept = 0u32;
-    for (i, &(_, voxels, _)) in levels.iter().enumerate() {
-        if voxels >= floor {
+    for (i, level) in levels.iter().enumerate() {
+        if level.voxels >= floor {
             kept_id[i] = Some(kept);
             kept += 1;
         }
@@ -257,7 +270,7 @@ fn regions(
     let renumber: Vec<Option<u32>> = (0..sizes.len())
         .map(|k| {
             let i = level_of[k]?;
-            let seeds = sizes[k] >= floor || levels[i].2 == k;
+            let seeds = sizes[k] >= floor || levels[i].largest == k;
             kept_id[i].filter(|_| seeds)
         })
         .collect();
